@@ -1,0 +1,30 @@
+"""Environment adapters behind one small protocol (`qdrl.envs.base.Env`), and `make`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from qdrl.envs.base import Env, EnvState, auto_reset, reset_batch, step_batch
+
+PURE_JAX_ENVS = ("point",)
+
+
+def env_names() -> list[str]:
+    """Every name `make` accepts: qdrl's pure-JAX environments, then brax's registry."""
+    from qdrl.envs.brax import brax_env_names
+
+    return [*PURE_JAX_ENVS, *brax_env_names()]
+
+
+def make(name: str, backend: str = "spring", episode_length: int = 1000, **kwargs: Any) -> Env:
+    """The environment called `name` (brax ones on `backend`), truncated at `episode_length`."""
+    if name == "point":
+        from qdrl.envs.point import PointEnv
+
+        return PointEnv(episode_length=episode_length, **kwargs)
+    from qdrl.envs.brax import BraxEnv
+
+    return BraxEnv(name, backend, episode_length, **kwargs)
+
+
+__all__ = ["Env", "EnvState", "auto_reset", "env_names", "make", "reset_batch", "step_batch"]

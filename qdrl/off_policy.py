@@ -1,0 +1,180 @@
+"""The one off-policy training loop: collect, store, update — as a jitted scan.
+
+SAC, TD3, and later DIAYN, DADS, SMERL and PBT train through `make_trainer`.
+One iteration acts in `num_envs` environments, inserts those transitions into
+the replay buffer and runs `grad_steps_per_iter` agent updates on uniformly
+sampled batches. Before `learning_starts` environment steps, actions are uniform
+random and no update runs. `Trainer.run_chunk` scans many iterations; Python
+only runs between chunks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from qdrl import buffers
+from qdrl.agents.base import Agent, AgentState
+from qdrl.envs.base import Env, EnvState, reset_batch
+from qdrl.rollout import env_step, run_episodes
+from qdrl.types import Array, PRNGKey, Transition
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Settings of the off-policy loop (the agent's own settings are in its config)."""
+
+    total_env_steps: int = 1_000_000  # environment steps of the whole run
+    num_envs: int = 16  # environments stepped in parallel for collection
+    batch_size: int = 256  # transitions per gradient step
+    buffer_size: int = 1_000_000  # replay capacity, in transitions
+    learning_starts: int = 10_000  # env steps of uniform random actions before any update
+    grad_steps_per_iter: int = 16  # updates per iteration (num_envs env steps)
+    eval_every: int = 10_000  # env steps between log points (evaluation, metrics row)
+    num_eval_envs: int = 16  # episodes per evaluation, deterministic policy
+
+    def check(self) -> None:
+        for name in (
+            "total_env_steps",
+            "num_envs",
+            "batch_size",
+            "buffer_size",
+            "grad_steps_per_iter",
+            "eval_every",
+            "num_eval_envs",
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+                raise ValueError(f"train.{name}: expected a positive integer, got {value!r}")
+        if self.learning_starts < 0:
+            raise ValueError(
+                f"train.learning_starts: expected a non-negative integer, got {self.learning_starts}"
+            )
+        if self.eval_every % self.num_envs:
+            raise ValueError(
+                f"train.eval_every: expected a multiple of train.num_envs={self.num_envs}, "
+                f"got {self.eval_every}"
+            )
+        if self.batch_size > self.buffer_size:
+            raise ValueError(
+                f"train.batch_size: expected at most train.buffer_size={self.buffer_size}, "
+                f"got {self.batch_size}"
+            )
+
+    @property
+    def iters_per_chunk(self) -> int:
+        return self.eval_every // self.num_envs
+
+    @property
+    def num_chunks(self) -> int:
+        return -(-self.total_env_steps // self.eval_every)
+
+
+class TrainState(NamedTuple):
+    """Everything a run carries between iterations; checkpointing saves exactly this."""
+
+    agent: AgentState
+    buffer: buffers.ReplayBuffer
+    env: EnvState
+    key: PRNGKey
+    env_steps: Array  # int32, environment steps taken
+    grad_steps: Array  # int32, agent updates taken
+
+
+class Trainer(NamedTuple):
+    """The jittable functions of one off-policy run."""
+
+    init: Callable[[PRNGKey], TrainState]
+    run_chunk: Callable[[TrainState], tuple[TrainState, dict[str, Array]]]
+    evaluate: Callable[[AgentState, PRNGKey], dict[str, Array]]
+
+
+def _transition_example(env: Env) -> Transition:
+    obs = jnp.zeros((env.observation_size,), jnp.float32)
+    desc = jnp.zeros((env.descriptor_size,), jnp.float32)
+    scalar = jnp.zeros((), jnp.float32)
+    action = jnp.zeros((env.action_size,), jnp.float32)
+    return Transition(obs, action, scalar, obs, scalar, scalar, desc, desc)
+
+
+def make_trainer(env: Env, agent: Agent, config: TrainConfig) -> Trainer:
+    """Build the init / chunk / evaluate functions of an off-policy run of `agent` on `env`."""
+    config.check()
+    action_size = env.action_size
+
+    def init(key: PRNGKey) -> TrainState:
+        agent_key, env_key, key = jax.random.split(key, 3)
+        return TrainState(
+            agent=agent.init(agent_key),
+            buffer=buffers.init(_transition_example(env), config.buffer_size),
+            env=reset_batch(env, env_key, config.num_envs),
+            key=key,
+            env_steps=jnp.zeros((), jnp.int32),
+            grad_steps=jnp.zeros((), jnp.int32),
+        )
+
+    def updates(agent_state: AgentState, buffer: buffers.ReplayBuffer, key: PRNGKey) -> Any:
+        def one(s: AgentState, k: PRNGKey) -> tuple[AgentState, Any]:
+            sample_key, update_key = jax.random.split(k)
+            batch = buffers.sample(buffer, sample_key, config.batch_size)
+            return agent.update(s, batch, update_key)
+
+        s, metrics = jax.lax.scan(one, agent_state, jax.random.split(key, config.grad_steps_per_iter))
+        return s, jax.tree.map(jnp.mean, metrics)
+
+    def iteration(ts: TrainState, _: None) -> tuple[TrainState, dict[str, Array]]:
+        key, act_key, update_key = jax.random.split(ts.key, 3)
+        warmup = ts.env_steps < config.learning_starts
+
+        def policy(obs: Array, k: PRNGKey) -> Array:
+            random_key, agent_key = jax.random.split(k)
+            uniform = jax.random.uniform(random_key, (obs.shape[0], action_size), minval=-1.0, maxval=1.0)
+            return jnp.where(warmup, uniform, agent.act(ts.agent, obs, agent_key))
+
+        env_state, transition = env_step(env, ts.env, policy, act_key)
+        buffer = buffers.insert(ts.buffer, transition)
+        env_steps = ts.env_steps + config.num_envs
+        can_train = (env_steps >= config.learning_starts) & (buffer.size >= config.batch_size)
+
+        metric_shapes = jax.eval_shape(updates, ts.agent, buffer, update_key)[1]
+
+        def skip(s: AgentState, b: buffers.ReplayBuffer, k: PRNGKey) -> Any:
+            return s, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), metric_shapes)
+
+        agent_state, metrics = jax.lax.cond(can_train, updates, skip, ts.agent, buffer, update_key)
+        metrics = dict(metrics)
+        metrics["train_return"] = jnp.nanmean(env_state.last_return)
+        new = TrainState(
+            agent=agent_state,
+            buffer=buffer,
+            env=env_state,
+            key=key,
+            env_steps=env_steps,
+            grad_steps=ts.grad_steps + jnp.where(can_train, config.grad_steps_per_iter, 0),
+        )
+        return new, metrics
+
+    def run_chunk(ts: TrainState) -> tuple[TrainState, dict[str, Array]]:
+        ts, metrics = jax.lax.scan(iteration, ts, None, length=config.iters_per_chunk)
+        # nan marks iterations without updates; average over the others.
+        return ts, jax.tree.map(lambda m: jnp.nanmean(m, axis=0), metrics)
+
+    def evaluate(agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
+        params = agent.policy_params(agent_state)
+        episodes = run_episodes(
+            env, lambda obs, _: agent.policy(params, obs), key, config.num_eval_envs
+        )
+        return {
+            "eval_return": jnp.mean(episodes.returns),
+            "eval_return_std": jnp.std(episodes.returns),
+            "eval_length": jnp.mean(episodes.lengths.astype(jnp.float32)),
+            "eval_returns": episodes.returns,
+            "eval_final_desc": episodes.final_desc,
+            "eval_mean_desc": episodes.mean_desc,
+        }
+
+    return Trainer(init=init, run_chunk=run_chunk, evaluate=evaluate)

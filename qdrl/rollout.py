@@ -1,0 +1,97 @@
+"""The one rollout loop of qdrl: step a batch of environments under a policy, in a scan.
+
+Training collection (with automatic resets), evaluation of an agent, and the
+evaluation of a batch of policy genotypes by QD tasks all call `unroll`; they
+differ only by the policy function and by `auto_reset`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from qdrl.envs.base import Env, EnvState, auto_reset, reset_batch, step_batch
+from qdrl.types import Array, PRNGKey, Transition
+
+# obs batch (B, obs_size), key -> action batch (B, action_size)
+PolicyFn = Callable[[Array, PRNGKey], Array]
+
+
+def env_step(
+    env: Env, state: EnvState, policy: PolicyFn, key: PRNGKey, reset: bool = True
+) -> tuple[EnvState, Transition]:
+    """Act, step the batch and record the transition; then reset finished envs if `reset`.
+
+    The transition keeps the true next observation of a finished episode: the
+    reset happens after it is recorded.
+    """
+    action = policy(state.obs, key)
+    next_state = step_batch(env, state, action)
+    transition = Transition(
+        obs=state.obs,
+        action=action,
+        reward=next_state.reward,
+        next_obs=next_state.obs,
+        terminated=next_state.terminated,
+        truncated=next_state.truncated,
+        desc=state.desc,
+        next_desc=next_state.desc,
+    )
+    if reset:
+        next_state = auto_reset(env, next_state)
+    return next_state, transition
+
+
+def unroll(
+    env: Env,
+    state: EnvState,
+    policy: PolicyFn,
+    key: PRNGKey,
+    num_steps: int,
+    reset: bool = True,
+) -> tuple[EnvState, Transition]:
+    """`num_steps` steps of `env_step` in a `lax.scan`; transitions are stacked (T, B, ...)."""
+
+    def body(s: EnvState, k: PRNGKey) -> tuple[EnvState, Transition]:
+        return env_step(env, s, policy, k, reset)
+
+    return jax.lax.scan(body, state, jax.random.split(key, num_steps))
+
+
+class Episodes(NamedTuple):
+    """Whole episodes of a batch of environments, one per batch entry."""
+
+    returns: Array  # (B,) sum of rewards up to and including the episode's last step
+    lengths: Array  # (B,) int32 number of steps taken before the episode ended
+    final_desc: Array  # (B, D) state descriptor after the last step of the episode
+    mean_desc: Array  # (B, D) state descriptor averaged over the episode's steps
+    transitions: Transition  # (T, B, ...) every step, valid where `mask` is 1
+    mask: Array  # (T, B) 1.0 for steps inside the episode
+
+
+def run_episodes(
+    env: Env, policy: PolicyFn, key: PRNGKey, num_envs: int, num_steps: int | None = None
+) -> Episodes:
+    """Roll out one episode per environment from fresh resets, masking steps after the end.
+
+    Episodes last at most `num_steps` (default: the env's episode length).
+    """
+    num_steps = env.episode_length if num_steps is None else num_steps
+    reset_key, run_key = jax.random.split(key)
+    state = reset_batch(env, reset_key, num_envs)
+    _, tr = unroll(env, state, policy, run_key, num_steps, reset=False)
+    done = jnp.maximum(tr.terminated, tr.truncated)
+    # A step is valid if no earlier step ended the episode.
+    ended_before = jnp.cumsum(done, axis=0) - done
+    mask = (ended_before == 0).astype(jnp.float32)
+    lengths = jnp.sum(mask, axis=0).astype(jnp.int32)
+    returns = jnp.sum(tr.reward * mask, axis=0)
+    last = jnp.clip(lengths - 1, 0, num_steps - 1)
+    final_desc = jnp.take_along_axis(tr.next_desc, last[None, :, None], axis=0)[0]
+    mean_desc = jnp.sum(tr.next_desc * mask[..., None], axis=0) / jnp.maximum(
+        lengths[:, None], 1
+    )
+    return Episodes(returns, lengths, final_desc, mean_desc, tr, mask)

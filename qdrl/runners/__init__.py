@@ -1,0 +1,1 @@
+"""Algorithm runs for the experiment driver; importing a module registers its algorithms."""
