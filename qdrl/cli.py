@@ -50,7 +50,11 @@ def _cmd_list(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from qdrl.bench import run_bench
 
-    results = run_bench(args.name, quick=args.quick, out=args.out)
+    try:
+        results = run_bench(args.name, quick=args.quick, out=args.out)
+    except ValueError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
     print(json.dumps(results, indent=2))
     return 0
 

@@ -34,7 +34,7 @@ def activation(name: str) -> Callable[[Array], Array]:
     return ACTIVATIONS[name]
 
 
-def _mlp(hidden: Sequence[int], out: int, act: str, name: str) -> hk.Module:
+def _mlp(hidden: Sequence[int], out: int, act: str, name: str) -> hk.nets.MLP:
     return hk.nets.MLP(
         [*hidden, out],
         activation=activation(act),

@@ -47,7 +47,7 @@ class EnvConfig:
 class OffPolicyRun:
     """A SAC or TD3 run: trainer chunks plus a deterministic evaluation per log point."""
 
-    progress_keys = ("eval_return",)
+    progress_keys: tuple[str, ...] = ("eval_return",)
 
     def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
         from qdrl.agents import AGENTS
@@ -72,7 +72,9 @@ class OffPolicyRun:
         self._eval: Any = None
 
     def init(self, key: jax.Array) -> TrainState:
-        return self.trainer.init(key)
+        # jit gives every leaf its own buffer (eager init aliases target and online
+        # parameters), which the donating chunk function requires.
+        return jax.jit(self.trainer.init)(key)
 
     def compile(self, state: TrainState) -> float:
         import time

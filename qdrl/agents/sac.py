@@ -1,0 +1,313 @@
+"""Soft Actor-Critic with learned temperature.
+
+Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"
+(arXiv:1812.05905): twin soft Q critics with Polyak-averaged targets (eq. 5-6),
+a reparameterised tanh-Gaussian actor (eq. 7-8) and automatic entropy
+adjustment towards a target entropy (eq. 17-18).
+
+The agent is a bundle of pure functions over `SACState` (see
+`qdrl.agents.base.Agent`). Every value population-based training may change —
+learning rates, discount, tau, reward scale — is read from `state.hparams`, so a
+vmapped population of states can hold a different value per member.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import chex
+import haiku as hk
+import jax
+import jax.numpy as jnp
+import optax
+import rlax
+
+from qdrl import nets
+from qdrl.agents.base import Agent
+from qdrl.agents.common import adam_step, check_size, is_real, require
+from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
+
+# Names of the PBT-tunable scalars held in `SACState.hparams`.
+HPARAM_NAMES = ("actor_lr", "critic_lr", "alpha_lr", "discount", "tau", "reward_scale")
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig:
+    """SAC hyperparameters; defaults from Haarnoja et al. 2018 (Table 1).
+
+    The training batch size is not here: the training loop owns it.
+    """
+
+    # Adam step size of the policy.
+    actor_lr: float = 3e-4
+    # Adam step size of the twin Q critics.
+    critic_lr: float = 3e-4
+    # Adam step size of log(alpha), the entropy temperature.
+    alpha_lr: float = 3e-4
+    # gamma: weight of the bootstrapped next-state value in the critic target.
+    discount: float = 0.99
+    # Polyak rate of the target critics: target <- tau * online + (1 - tau) * target.
+    tau: float = 0.005
+    # Rewards are multiplied by this in the critic target.
+    reward_scale: float = 1.0
+    # Entropy temperature alpha at initialisation (and forever if learn_alpha is False).
+    init_alpha: float = 1.0
+    # Entropy the temperature drives the policy towards; None means -action_size.
+    target_entropy: float | None = None
+    # Whether alpha is learned (eq. 18) or held at init_alpha.
+    learn_alpha: bool = True
+    # Hidden layer widths of the policy and of each critic.
+    hidden: tuple[int, ...] = (256, 256)
+    # Activation of the hidden layers; a key of `qdrl.nets.ACTIVATIONS`.
+    activation: str = "relu"
+
+    def __post_init__(self) -> None:
+        # TOML and JSON give lists; a tuple keeps the config hashable.
+        if isinstance(self.hidden, list):
+            object.__setattr__(self, "hidden", tuple(self.hidden))
+
+    def check(self) -> None:
+        """Raises ValueError naming the first field whose value is out of range."""
+        for name in ("actor_lr", "critic_lr", "alpha_lr"):
+            value = getattr(self, name)
+            require(is_real(value) and value > 0, name, "a float > 0", value)
+        d = self.discount
+        require(is_real(d) and 0 <= d <= 1, "discount", "a float in [0, 1]", d)
+        t = self.tau
+        require(is_real(t) and 0 < t <= 1, "tau", "a float in (0, 1]", t)
+        r = self.reward_scale
+        require(is_real(r) and r > 0, "reward_scale", "a float > 0", r)
+        a = self.init_alpha
+        require(is_real(a) and a > 0, "init_alpha", "a float > 0", a)
+        h = self.target_entropy
+        require(h is None or is_real(h), "target_entropy", "a finite float or None", h)
+        require(isinstance(self.learn_alpha, bool), "learn_alpha", "a bool", self.learn_alpha)
+        require(
+            isinstance(self.hidden, tuple)
+            and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in self.hidden),
+            "hidden",
+            "a tuple of positive ints",
+            self.hidden,
+        )
+        require(
+            self.activation in nets.ACTIVATIONS,
+            "activation",
+            f"one of {sorted(nets.ACTIVATIONS)}",
+            self.activation,
+        )
+
+    def hparams(self) -> dict[str, float]:
+        """The PBT-tunable scalars, as stored (as float32 arrays) in `SACState.hparams`."""
+        return {name: float(getattr(self, name)) for name in HPARAM_NAMES}
+
+
+class SACNetworks(NamedTuple):
+    """The two haiku networks of SAC."""
+
+    policy: hk.Transformed  # obs -> (mean, log_std) of the pre-tanh Gaussian
+    critic: hk.Transformed  # (obs, action) -> Q-values, shape (..., 2)
+
+
+class SACState(NamedTuple):
+    """Everything SAC learns and the tunable scalars it learns with."""
+
+    policy_params: Params
+    critic_params: Params
+    target_critic_params: Params
+    policy_opt_state: optax.OptState  # Adam moments (optax.scale_by_adam)
+    critic_opt_state: optax.OptState
+    log_alpha: Array  # float32 scalar, log of the entropy temperature
+    alpha_opt_state: optax.OptState
+    steps: Array  # int32 scalar, gradient steps taken
+    hparams: dict[str, Array]  # float32 scalars, keys HPARAM_NAMES
+
+
+class SACLosses(NamedTuple):
+    """Pure SAC losses; each returns a scalar to minimise (critic and actor with aux metrics).
+
+    critic(critic_params, policy_params, target_critic_params, alpha, transitions,
+           discount, reward_scale, key) -> (loss, {"q_mean", "target_q_mean"})
+    actor(policy_params, critic_params, alpha, obs, key) -> (loss, log_prob)
+    alpha(log_alpha, log_prob) -> loss
+    """
+
+    critic: Callable[..., tuple[Array, dict[str, Array]]]
+    actor: Callable[..., tuple[Array, Array]]
+    alpha: Callable[[Array, Array], Array]
+
+
+def make_sac_networks(config: SACConfig, action_size: int) -> SACNetworks:
+    """The tanh-Gaussian policy and twin Q critic that `config` describes."""
+    return SACNetworks(
+        policy=nets.gaussian_policy(action_size, config.hidden, config.activation),
+        critic=nets.twin_q_critic(config.hidden, config.activation),
+    )
+
+
+def make_sac_losses(networks: SACNetworks, target_entropy: float) -> SACLosses:
+    """Builds the SAC critic, actor and temperature losses over `networks`.
+
+    Haarnoja et al. 2018 (arXiv:1812.05905), eq. 5 (critic), eq. 7 (actor),
+    eq. 18 (temperature).
+    """
+
+    def critic_loss(
+        critic_params: Params,
+        policy_params: Params,
+        target_critic_params: Params,
+        alpha: Array,
+        transitions: Transition,
+        discount: Array,
+        reward_scale: Array,
+        key: PRNGKey,
+    ) -> tuple[Array, dict[str, Array]]:
+        """0.5 E[sum_i (Q_i(s, a) - y)^2], y = c r + gamma m (min_j Q'_j(s', a') - alpha log pi(a'|s')).
+
+        a' ~ pi(.|s') is drawn with `key`; m is `transitions.discount_mask`, so the
+        target bootstraps through time-limit truncations and not through terminations.
+        """
+        mean, log_std = networks.policy.apply(policy_params, transitions.next_obs)
+        next_action, next_log_prob = nets.sample_tanh_gaussian(mean, log_std, key)
+        next_q = networks.critic.apply(target_critic_params, transitions.next_obs, next_action)
+        next_v = jnp.min(next_q, axis=-1) - alpha * next_log_prob
+        target_q = jax.lax.stop_gradient(
+            reward_scale * transitions.reward + discount * transitions.discount_mask * next_v
+        )
+        q = networks.critic.apply(critic_params, transitions.obs, transitions.action)
+        loss = jnp.mean(jnp.sum(rlax.l2_loss(q, target_q[..., None]), axis=-1))
+        return loss, {"q_mean": jnp.mean(q), "target_q_mean": jnp.mean(target_q)}
+
+    def actor_loss(
+        policy_params: Params,
+        critic_params: Params,
+        alpha: Array,
+        obs: Array,
+        key: PRNGKey,
+    ) -> tuple[Array, Array]:
+        """E[alpha log pi(a|s) - min_i Q_i(s, a)], a = tanh(mu + sigma eps) drawn with `key`.
+
+        Returns the loss and the log-probabilities of the sampled actions (for the
+        temperature loss).
+        """
+        mean, log_std = networks.policy.apply(policy_params, obs)
+        action, log_prob = nets.sample_tanh_gaussian(mean, log_std, key)
+        q = jnp.min(networks.critic.apply(critic_params, obs, action), axis=-1)
+        return jnp.mean(alpha * log_prob - q), log_prob
+
+    def alpha_loss(log_alpha: Array, log_prob: Array) -> Array:
+        """E[-alpha (log pi(a|s) + H_target)], alpha = exp(log_alpha); no gradient to log_prob."""
+        log_prob = jax.lax.stop_gradient(log_prob)
+        return jnp.mean(jnp.exp(log_alpha) * (-log_prob - target_entropy))
+
+    return SACLosses(critic=critic_loss, actor=actor_loss, alpha=alpha_loss)
+
+
+def make_sac(config: SACConfig, obs_size: int, action_size: int) -> Agent:
+    """A SAC agent (Haarnoja et al. 2018) for flat observations and actions in [-1, 1]."""
+    config.check()
+    check_size("obs_size", obs_size)
+    check_size("action_size", action_size)
+    networks = make_sac_networks(config, action_size)
+    target_entropy = (
+        -float(action_size) if config.target_entropy is None else float(config.target_entropy)
+    )
+    losses = make_sac_losses(networks, target_entropy)
+    adam = optax.scale_by_adam()
+
+    def init(key: PRNGKey) -> SACState:
+        policy_key, critic_key = jax.random.split(key)
+        obs = jnp.zeros((1, obs_size))
+        action = jnp.zeros((1, action_size))
+        policy_params = networks.policy.init(policy_key, obs)
+        critic_params = networks.critic.init(critic_key, obs, action)
+        log_alpha = jnp.asarray(math.log(config.init_alpha), jnp.float32)
+        return SACState(
+            policy_params=policy_params,
+            critic_params=critic_params,
+            target_critic_params=critic_params,
+            policy_opt_state=adam.init(policy_params),
+            critic_opt_state=adam.init(critic_params),
+            log_alpha=log_alpha,
+            alpha_opt_state=adam.init(log_alpha),
+            steps=jnp.zeros((), jnp.int32),
+            hparams={k: jnp.asarray(v, jnp.float32) for k, v in config.hparams().items()},
+        )
+
+    def act(state: SACState, obs: Array, key: PRNGKey) -> Array:
+        mean, log_std = networks.policy.apply(state.policy_params, obs)
+        action, _ = nets.sample_tanh_gaussian(mean, log_std, key)
+        return action
+
+    def policy(policy_params: Params, obs: Array) -> Array:
+        mean, _ = networks.policy.apply(policy_params, obs)
+        return jnp.tanh(mean)
+
+    def policy_params(state: SACState) -> Params:
+        return state.policy_params
+
+    def update(state: SACState, transitions: Transition, key: PRNGKey) -> tuple[SACState, Metrics]:
+        """Critic, actor and temperature steps, then the Polyak target update (Algorithm 1)."""
+        chex.assert_shape(transitions.obs, (None, obs_size))
+        chex.assert_shape(transitions.action, (None, action_size))
+        chex.assert_equal_shape([transitions.reward, transitions.terminated, transitions.truncated])
+        hp = state.hparams
+        critic_key, actor_key = jax.random.split(key)
+        alpha = jnp.exp(state.log_alpha)
+
+        (critic_loss, critic_aux), critic_grads = jax.value_and_grad(losses.critic, has_aux=True)(
+            state.critic_params,
+            state.policy_params,
+            state.target_critic_params,
+            alpha,
+            transitions,
+            hp["discount"],
+            hp["reward_scale"],
+            critic_key,
+        )
+        critic_params, critic_opt_state = adam_step(
+            state.critic_params, state.critic_opt_state, critic_grads, hp["critic_lr"]
+        )
+
+        (actor_loss, log_prob), actor_grads = jax.value_and_grad(losses.actor, has_aux=True)(
+            state.policy_params, critic_params, alpha, transitions.obs, actor_key
+        )
+        policy_params, policy_opt_state = adam_step(
+            state.policy_params, state.policy_opt_state, actor_grads, hp["actor_lr"]
+        )
+
+        alpha_loss, alpha_grad = jax.value_and_grad(losses.alpha)(state.log_alpha, log_prob)
+        if config.learn_alpha:
+            log_alpha, alpha_opt_state = adam_step(
+                state.log_alpha, state.alpha_opt_state, alpha_grad, hp["alpha_lr"]
+            )
+        else:
+            log_alpha, alpha_opt_state = state.log_alpha, state.alpha_opt_state
+
+        target_critic_params = optax.incremental_update(
+            critic_params, state.target_critic_params, hp["tau"]
+        )
+        new_state = SACState(
+            policy_params=policy_params,
+            critic_params=critic_params,
+            target_critic_params=target_critic_params,
+            policy_opt_state=policy_opt_state,
+            critic_opt_state=critic_opt_state,
+            log_alpha=log_alpha,
+            alpha_opt_state=alpha_opt_state,
+            steps=state.steps + 1,
+            hparams=state.hparams,
+        )
+        metrics = {
+            "critic_loss": critic_loss,
+            "actor_loss": actor_loss,
+            "alpha_loss": alpha_loss,
+            "alpha": alpha,
+            "entropy": -jnp.mean(log_prob),
+            **critic_aux,
+        }
+        return new_state, metrics
+
+    return Agent(init=init, act=act, policy=policy, policy_params=policy_params, update=update)

@@ -1,0 +1,188 @@
+"""Jittable ring replay buffer whose storage is any pytree.
+
+A buffer is a `ReplayBuffer` NamedTuple, so it travels through `jax.jit`,
+`jax.lax.scan` and `jax.vmap` (one buffer per population member) like any other
+state. Items are arbitrary pytrees — a `qdrl.types.Transition`, or a Transition
+plus extra per-transition fields such as an episode return — and every leaf of
+the storage carries a leading axis of length `capacity`.
+
+Typical use::
+
+    buffer = buffers.init(example_transition, capacity=1_000_000)
+    buffer = buffers.insert(buffer, batch_of_transitions)   # leading axis n
+    batch = buffers.sample(buffer, key, batch_size=256)
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from qdrl.types import Array, PRNGKey, PyTree
+
+__all__ = ["ReplayBuffer", "can_sample", "init", "insert", "sample"]
+
+
+class ReplayBuffer(NamedTuple):
+    """Ring buffer of pytree items; the oldest items are overwritten first.
+
+    Attributes:
+      data: pytree of storage arrays, each with leading axis `capacity`. Slots
+        at index >= `size` have never been written and hold zeros.
+      position: int32 scalar, the slot the next item is written to.
+      size: int32 scalar, number of valid items (`<= capacity`).
+    """
+
+    data: PyTree
+    position: Array
+    size: Array
+
+    @property
+    def capacity(self) -> int:
+        """Number of slots: the static leading dimension of the storage leaves."""
+        return int(jax.tree_util.tree_leaves(self.data)[0].shape[0])
+
+
+def _shape_dtype(leaf: Any) -> tuple[tuple[int, ...], np.dtype]:
+    # `jax.ShapeDtypeStruct`, jax and numpy arrays all expose shape and dtype;
+    # Python scalars go through jnp so they take JAX's default dtypes.
+    if hasattr(leaf, "shape") and hasattr(leaf, "dtype"):
+        return tuple(leaf.shape), np.dtype(leaf.dtype)
+    arr = jnp.asarray(leaf)
+    return tuple(arr.shape), np.dtype(arr.dtype)
+
+
+def init(example: PyTree, capacity: int) -> ReplayBuffer:
+    """Returns an empty buffer holding up to `capacity` items shaped like `example`.
+
+    Args:
+      example: one item, without batch axis. Leaves may be arrays, scalars or
+        `jax.ShapeDtypeStruct`; only their shapes and dtypes are used.
+      capacity: number of slots, > 0.
+
+    Returns:
+      A `ReplayBuffer` with zeroed storage, `position == size == 0`.
+    """
+    if isinstance(capacity, bool) or not isinstance(capacity, int | np.integer) or capacity <= 0:
+        raise ValueError(f"capacity must be a positive int, got {capacity!r}")
+    if not jax.tree_util.tree_leaves(example):
+        raise ValueError("example has no leaves; a buffer needs at least one array to store")
+
+    def zeros(leaf: Any) -> Array:
+        shape, dtype = _shape_dtype(leaf)
+        return jnp.zeros((int(capacity), *shape), dtype)
+
+    return ReplayBuffer(
+        data=jax.tree_util.tree_map(zeros, example),
+        position=jnp.zeros((), jnp.int32),
+        size=jnp.zeros((), jnp.int32),
+    )
+
+
+def _check_items(buffer: ReplayBuffer, items: PyTree) -> int:
+    """Returns the batch size of `items` after checking them against the storage."""
+    # Any: mypy cannot resolve jaxlib's PyTreeDef type and rejects comparing it.
+    data_def: Any = jax.tree_util.tree_structure(buffer.data)
+    items_def: Any = jax.tree_util.tree_structure(items)
+    if items_def != data_def:
+        raise ValueError(
+            f"insert: items structure does not match the buffer.\n"
+            f"  expected: {data_def}\n  got:      {items_def}"
+        )
+    storage = jax.tree_util.tree_leaves(buffer.data)
+    named_items = jax.tree_util.tree_flatten_with_path(items)[0]
+    batch: int | None = None
+    batch_from = ""
+    for (path, item), store in zip(named_items, storage, strict=True):
+        name = jax.tree_util.keystr(path) or "<root>"
+        shape, dtype = _shape_dtype(item)
+        want_shape, want_dtype = tuple(store.shape[1:]), np.dtype(store.dtype)
+        if len(shape) != len(want_shape) + 1 or shape[1:] != want_shape or dtype != want_dtype:
+            raise ValueError(
+                f"insert: items leaf {name} must have shape (n, *{want_shape}) and dtype "
+                f"{want_dtype} (a leading batch axis, then the item shape); "
+                f"got shape {shape} and dtype {dtype}"
+            )
+        if batch is None:
+            batch, batch_from = shape[0], name
+        elif shape[0] != batch:
+            raise ValueError(
+                f"insert: all items leaves must share the batch size; leaf {batch_from} "
+                f"has {batch}, leaf {name} has {shape[0]}"
+            )
+    assert batch is not None  # init() guarantees at least one leaf
+    return batch
+
+
+def insert(buffer: ReplayBuffer, items: PyTree) -> ReplayBuffer:
+    """Writes a batch of items at `position`, wrapping around the ring.
+
+    Item `i` of the batch goes to slot `(position + i) % capacity`. When the
+    batch is larger than the buffer only its last `capacity` items are kept,
+    which is exactly what writing them one by one would leave behind.
+
+    Args:
+      buffer: the buffer to write to.
+      items: pytree with the storage's structure; each leaf has a leading batch
+        axis `n` (static) followed by the item shape, with the storage dtype.
+
+    Returns:
+      The updated buffer. Jittable; shapes are checked at trace time.
+
+    Raises:
+      ValueError: if the structure, shapes or dtypes of `items` do not match.
+    """
+    n = _check_items(buffer, items)
+    if n == 0:
+        return buffer
+    capacity = buffer.capacity
+    kept = min(n, capacity)
+    if kept < n:
+        items = jax.tree_util.tree_map(lambda x: x[n - kept :], items)
+    # The first kept item is item `n - kept` of the batch; its slot follows the
+    # ring from the current position. `kept <= capacity` makes the indices unique.
+    start = (buffer.position + (n - kept)) % capacity
+    idx = (start + jnp.arange(kept, dtype=jnp.int32)) % capacity
+    data = jax.tree_util.tree_map(
+        lambda store, x: store.at[idx].set(x, unique_indices=True), buffer.data, items
+    )
+    return ReplayBuffer(
+        data=data,
+        position=((buffer.position + n) % capacity).astype(jnp.int32),
+        size=jnp.minimum(buffer.size + n, capacity).astype(jnp.int32),
+    )
+
+
+def can_sample(buffer: ReplayBuffer, batch_size: int) -> Array:
+    """Returns a bool scalar: True once the buffer holds at least `batch_size` items.
+
+    Use it to gate learning during warm-up (e.g. inside `jax.lax.cond`);
+    `sample` on a buffer for which this is False still runs but is not uniform
+    over real data (see `sample`).
+    """
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    return buffer.size >= batch_size
+
+
+def sample(buffer: ReplayBuffer, key: PRNGKey, batch_size: int) -> PyTree:
+    """Draws `batch_size` items uniformly, with replacement, from the valid items.
+
+    Args:
+      buffer: a buffer with `size >= 1` (check with `can_sample`).
+      key: PRNG key.
+      batch_size: static number of items to draw.
+
+    Returns:
+      A pytree like the storage with leading axis `batch_size`.
+
+    On an empty buffer (`size == 0`) every index is 0 and the batch is the
+    zeros of the unwritten slot 0; no error is raised because `size` is traced.
+    """
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    idx = jax.random.randint(key, (batch_size,), 0, buffer.size)
+    return jax.tree_util.tree_map(lambda store: store[idx], buffer.data)
