@@ -37,13 +37,13 @@ def _type_name(tp: Any) -> str:
     return names.get(tp, getattr(tp, "__name__", str(tp)))
 
 
-def _coerce(value: Any, tp: Any, where: str) -> Any:
+def coerce(value: Any, tp: Any, where: str) -> Any:
     """`value` as type `tp`, or ConfigError naming `where` and the expected type."""
     origin = typing.get_origin(tp)
     if origin in (types.UnionType, typing.Union):
         for arg in typing.get_args(tp):
             try:
-                return _coerce(value, arg, where)
+                return coerce(value, arg, where)
             except ConfigError:
                 continue
     elif origin is typing.Literal:
@@ -52,7 +52,7 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:
     elif origin is tuple:
         item_tp = typing.get_args(tp)[0]
         if isinstance(value, list | tuple):
-            return tuple(_coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))
+            return tuple(coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))
     elif tp is type(None):
         if value is None:
             return None
@@ -84,7 +84,7 @@ def build(cls: type[Any], data: Mapping[str, Any], section: str) -> Any:
         raise ConfigError(
             f"{section}.{unknown[0]}: unknown key; expected one of {sorted(fields)}"
         )
-    kwargs = {k: _coerce(v, hints[k], f"{section}.{k}") for k, v in data.items()}
+    kwargs = {k: coerce(v, hints[k], f"{section}.{k}") for k, v in data.items()}
     obj = cls(**kwargs)
     check = getattr(obj, "check", None)
     if check is not None:
@@ -164,7 +164,9 @@ def dump_toml(sections: Mapping[str, Mapping[str, Any]]) -> str:
 
 
 def as_table(obj: Any) -> dict[str, Any]:
-    """A config dataclass as a flat dict (tuples as lists) for writing back to TOML."""
+    """A config dataclass (or a plain mapping) as a flat dict, tuples as lists, for TOML."""
+    if isinstance(obj, Mapping):
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in obj.items()}
     return {
         f.name: list(v) if isinstance(v := getattr(obj, f.name), tuple) else v
         for f in dataclasses.fields(obj)

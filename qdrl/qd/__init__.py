@@ -1,0 +1,1 @@
+"""Quality-Diversity: repertoires, emitters and the one QD loop (`map_elites`)."""

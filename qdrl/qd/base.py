@@ -1,0 +1,82 @@
+"""The contracts between the QD loop, repertoires, emitters and scoring functions.
+
+- A scoring function evaluates a batch of genotypes: `scoring_fn(genotypes, key)
+  -> Evaluation`.
+- A repertoire is a pytree with `add(genotypes, descriptors, fitnesses) ->
+  (repertoire, AddResult)` and `sample(key, n) -> genotypes`; empty cells have
+  fitness -inf.
+- An emitter is `init / emit / update` over a pytree state; the loop never knows
+  which emitter it runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple, Protocol
+
+from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
+
+
+class Evaluation(NamedTuple):
+    """What a scoring function returns for a batch of n genotypes."""
+
+    fitnesses: Fitness  # (n,) float32; NaN marks a failed evaluation (never stored)
+    descriptors: Descriptor  # (n, D) float32
+    extras: dict[str, Any]  # e.g. {"transitions": Transition (T, n, ...)} for QD-RL emitters
+    env_steps: Array  # () int32 environment steps spent (0 for plain functions)
+
+
+ScoringFn = Callable[[Genotype, PRNGKey], Evaluation]
+
+
+class AddResult(NamedTuple):
+    """Per-candidate outcome of `repertoire.add`, for emitters that rank offspring."""
+
+    added: Array  # (n,) bool: the candidate is now the elite of its cell
+    new_cell: Array  # (n,) bool: it filled an empty cell
+    improvement: Array  # (n,) fitness minus the cell's previous elite (its fitness if new)
+    cell: Array  # (n,) int32 cell index (-1 when rejected outright, e.g. NaN fitness)
+
+
+class Repertoire(Protocol):
+    """What the loop, emitters and metrics rely on (see qdrl.qd.repertoires)."""
+
+    genotypes: Genotype  # leaves (C, ...)
+    fitnesses: Array  # (C,) -inf where empty
+    descriptors: Array  # (C, D)
+
+    def add(
+        self, genotypes: Genotype, descriptors: Descriptor, fitnesses: Fitness
+    ) -> tuple[Repertoire, AddResult]: ...
+
+    def sample(self, key: PRNGKey, num_samples: int) -> Genotype: ...
+
+
+class Emitter(Protocol):
+    """Produces offspring from a repertoire and learns from their evaluation.
+
+    `batch_size` offspring per `emit`. Everything is jittable; the state is a pytree
+    (None for stateless emitters).
+    """
+
+    batch_size: int
+
+    def init(self, key: PRNGKey, repertoire: Repertoire, evaluation: Evaluation, genotypes: Genotype) -> Any:
+        """Emitter state, given the initial population and its evaluation."""
+        ...
+
+    def emit(self, state: Any, repertoire: Repertoire, key: PRNGKey) -> Genotype:
+        """`batch_size` offspring genotypes."""
+        ...
+
+    def update(
+        self,
+        state: Any,
+        repertoire: Repertoire,
+        genotypes: Genotype,
+        evaluation: Evaluation,
+        added: AddResult,
+        key: PRNGKey,
+    ) -> Any:
+        """The new emitter state after its offspring were evaluated and offered to the repertoire."""
+        ...

@@ -1,0 +1,147 @@
+"""The one QD loop: MAP-Elites and every algorithm that is MAP-Elites with another part.
+
+Mouret & Clune 2015, "Illuminating search spaces by mapping elites"; with a CVT
+repertoire it is CVT-MAP-Elites (Vassiliades et al. 2018); with other emitters it
+is CMA-ME, PGA-ME, QD-PG, ME-ES, ME-PBT... The loop never knows which emitter or
+repertoire it runs.
+
+One iteration is `ask` (the emitter proposes offspring), evaluation by the
+scoring function, and `tell` (offspring offered to the repertoire, emitter
+updated). `step` chains the three under jit; `run` scans `step`. For evaluations
+done outside JAX (a simulator, a NumPy objective), call `ask` and `tell` yourself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire, ScoringFn
+from qdrl.qd.metrics import qd_metrics
+from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
+
+
+class QDState(NamedTuple):
+    """Everything a QD run carries between iterations; checkpointing saves exactly this."""
+
+    repertoire: Any
+    emitter_state: Any
+    key: PRNGKey
+    iteration: Array  # int32 iterations done
+    evaluations: Array  # int32 solutions evaluated, initial population included
+    env_steps: Array  # int32 environment steps spent by evaluations
+
+
+def _check_evaluation(n: int, fitnesses: Array, descriptors: Array, descriptor_size: int) -> None:
+    if fitnesses.shape != (n,):
+        raise ValueError(f"fitnesses: expected shape ({n},), got {fitnesses.shape}")
+    if descriptors.shape != (n, descriptor_size):
+        raise ValueError(
+            f"descriptors: expected shape ({n}, {descriptor_size}), got {descriptors.shape}"
+        )
+
+
+class MapElites:
+    """MAP-Elites over any repertoire, emitter and scoring function."""
+
+    def __init__(
+        self,
+        scoring_fn: ScoringFn,
+        emitter: Emitter,
+        repertoire: Repertoire,
+        qd_offset: float = 0.0,
+        metrics_fn: Callable[[Any, float], dict[str, Array]] = qd_metrics,
+    ) -> None:
+        """`repertoire` is the empty container to fill; `qd_offset` as in `qd_metrics`."""
+        self.scoring_fn = scoring_fn
+        self.emitter = emitter
+        self.empty_repertoire = repertoire
+        self.qd_offset = qd_offset
+        self.metrics_fn = metrics_fn
+        self.descriptor_size = int(repertoire.descriptors.shape[-1])
+
+    def init(self, genotypes: Genotype, key: PRNGKey) -> QDState:
+        """Evaluate an initial population, fill the repertoire with it, start the emitter."""
+        eval_key, emitter_key, key = jax.random.split(key, 3)
+        evaluation = self.scoring_fn(genotypes, eval_key)
+        n = int(evaluation.fitnesses.shape[0])
+        _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
+        repertoire, _ = self.empty_repertoire.add(
+            genotypes, evaluation.descriptors, evaluation.fitnesses
+        )
+        emitter_state = self.emitter.init(emitter_key, repertoire, evaluation, genotypes)
+        return QDState(
+            repertoire=repertoire,
+            emitter_state=emitter_state,
+            key=key,
+            iteration=jnp.zeros((), jnp.int32),
+            evaluations=jnp.asarray(n, jnp.int32),
+            env_steps=jnp.asarray(evaluation.env_steps, jnp.int32),
+        )
+
+    def ask(self, state: QDState) -> tuple[Genotype, QDState]:
+        """Offspring to evaluate, and the state with its key moved on."""
+        key, emit_key = jax.random.split(state.key)
+        offspring = self.emitter.emit(state.emitter_state, state.repertoire, emit_key)
+        return offspring, state._replace(key=key)
+
+    def tell(
+        self,
+        state: QDState,
+        genotypes: Genotype,
+        evaluation: Evaluation,
+    ) -> tuple[QDState, dict[str, Array]]:
+        """Offer evaluated offspring to the repertoire and update the emitter."""
+        n = int(evaluation.fitnesses.shape[0])
+        _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
+        key, update_key = jax.random.split(state.key)
+        repertoire, added = state.repertoire.add(
+            genotypes, evaluation.descriptors, evaluation.fitnesses
+        )
+        emitter_state = self.emitter.update(
+            state.emitter_state, repertoire, genotypes, evaluation, added, update_key
+        )
+        new = QDState(
+            repertoire=repertoire,
+            emitter_state=emitter_state,
+            key=key,
+            iteration=state.iteration + 1,
+            evaluations=state.evaluations + n,
+            env_steps=state.env_steps + jnp.asarray(evaluation.env_steps, jnp.int32),
+        )
+        return new, self._metrics(new, added)
+
+    def tell_values(
+        self,
+        state: QDState,
+        genotypes: Genotype,
+        fitnesses: Fitness,
+        descriptors: Descriptor,
+    ) -> tuple[QDState, dict[str, Array]]:
+        """`tell` for plain arrays of fitnesses and descriptors (e.g. computed with NumPy)."""
+        evaluation = Evaluation(
+            fitnesses=jnp.asarray(fitnesses, jnp.float32),
+            descriptors=jnp.asarray(descriptors, jnp.float32),
+            extras={},
+            env_steps=jnp.zeros((), jnp.int32),
+        )
+        return self.tell(state, genotypes, evaluation)
+
+    def step(self, state: QDState) -> tuple[QDState, dict[str, Array]]:
+        """One iteration: ask, evaluate, tell."""
+        offspring, state = self.ask(state)
+        key, eval_key = jax.random.split(state.key)
+        evaluation = self.scoring_fn(offspring, eval_key)
+        return self.tell(state._replace(key=key), offspring, evaluation)
+
+    def run(self, state: QDState, num_steps: int) -> tuple[QDState, dict[str, Array]]:
+        """`num_steps` iterations in a `lax.scan`; metrics are stacked per iteration."""
+        return jax.lax.scan(lambda s, _: self.step(s), state, None, length=num_steps)
+
+    def _metrics(self, state: QDState, added: AddResult) -> dict[str, Array]:
+        metrics = dict(self.metrics_fn(state.repertoire, self.qd_offset))
+        metrics["added"] = jnp.sum(added.added.astype(jnp.int32))
+        return metrics
