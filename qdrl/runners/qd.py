@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import jax
 import numpy as np
 
-from qdrl.config import ConfigError, coerce, build
+from qdrl.config import ConfigError, build, coerce
 from qdrl.experiment import ExperimentConfig, register
 
 if TYPE_CHECKING:
