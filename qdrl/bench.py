@@ -16,11 +16,12 @@ from typing import Any
 
 import jax
 
-BENCHES: dict[str, Callable[[bool], list[dict[str, Any]]]] = {}
+BenchFn = Callable[..., list[dict[str, Any]]]  # (quick, seed, config) -> records
+BENCHES: dict[str, BenchFn] = {}
 
 
-def _register(name: str) -> Callable[[Callable[[bool], list[dict[str, Any]]]], Any]:
-    def deco(fn: Callable[[bool], list[dict[str, Any]]]) -> Any:
+def _register(name: str) -> Callable[[BenchFn], BenchFn]:
+    def deco(fn: BenchFn) -> BenchFn:
         BENCHES[name] = fn
         return fn
 
@@ -104,22 +105,110 @@ def time_trainer(
 
 
 @_register("rl")
-def bench_rl(quick: bool) -> list[dict[str, Any]]:
+def bench_rl(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
     """SAC and TD3: halfcheetah (spring), 16 envs, 16 updates of batch 256 per iteration."""
+    algorithms = ("sac", "td3") if config is None else (config,)
     if quick:
         return [
             time_trainer(a, "point", episode_length=100, hidden=(32, 32), batch_size=64,
-                         iters_per_chunk=50, repeats=1)
-            for a in ("sac", "td3")
+                         iters_per_chunk=50, repeats=1, seed=seed)
+            for a in algorithms
         ]
-    return [time_trainer(a, "halfcheetah") for a in ("sac", "td3")]
+    return [time_trainer(a, "halfcheetah", seed=seed) for a in algorithms]
 
 
-def run_bench(name: str, quick: bool = False, out: str | Path | None = None) -> dict[str, Any]:
+# The containers of the MAP-Elites benchmark (the QDax paper's arm setting).
+ME_CONTAINERS: dict[str, tuple[str, Any]] = {
+    "cvt1024": ("cvt", 1024),
+    "grid32": ("grid", (32, 32)),
+    "grid100": ("grid", (100, 100)),
+}
+
+
+def time_map_elites(
+    container: str,
+    *,
+    num_dofs: int = 100,
+    batch_size: int = 1024,
+    iterations: int = 200,
+    iso_sigma: float = 0.05,
+    line_sigma: float = 0.1,
+    cvt_samples: int = 50_000,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """MAP-Elites on the arm: `iterations` iterations as one scan compiled ahead of time."""
+    from qdrl.qd.emitters.ga import isoline_emitter
+    from qdrl.qd.map_elites import MapElites
+    from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
+    from qdrl.qd.repertoires.cvt import cvt_centroids
+    from qdrl.tasks import make_task
+
+    if container not in ME_CONTAINERS:
+        raise ValueError(f"unknown container {container!r}; expected one of {sorted(ME_CONTAINERS)}")
+    kind, size = ME_CONTAINERS[container]
+    task = make_task("arm", num_dofs=num_dofs)
+    key = jax.random.PRNGKey(seed)
+    init_key, cvt_key, run_key = jax.random.split(key, 3)
+    example = jax.numpy.zeros((num_dofs,), jax.numpy.float32)
+    if kind == "cvt":
+        centroids = cvt_centroids(cvt_key, size, cvt_samples, task.descriptor_low, task.descriptor_high)
+        repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+    else:
+        repertoire = grid_repertoire(example, size, task.descriptor_low, task.descriptor_high)
+    emitter = isoline_emitter(batch_size, iso_sigma, line_sigma, task.genotype_low, task.genotype_high)
+    me = MapElites(task.scoring_fn, emitter, repertoire, qd_offset=task.qd_offset)
+    state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, batch_size), k2))(init_key, run_key)
+    jax.block_until_ready(state)
+    t0 = time.perf_counter()
+    run = jax.jit(lambda s: me.run(s, iterations)).lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    state, metrics = run(state)
+    jax.block_until_ready(state)
+    run_s = time.perf_counter() - t0
+    last = {k: float(v[-1]) for k, v in jax.device_get(metrics).items()}
+    return {
+        "bench": f"map_elites/arm/{container}",
+        "library": "qdrl",
+        "container": kind,
+        "cells": int(repertoire.fitnesses.shape[0]),
+        "seed": seed,
+        "dof": num_dofs,
+        "batch": batch_size,
+        "iterations": iterations,
+        "compile_s": round(compile_s, 3),
+        "run_s": round(run_s, 4),
+        "evals_per_s": round(batch_size * iterations / run_s, 1),
+        "qd_score": last["qd_score"],
+        "coverage": last["coverage"],
+        "max_fitness": last["max_fitness"],
+    }
+
+
+@_register("map_elites")
+def bench_map_elites(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
+    """MAP-Elites on the 100-DoF arm, batch 1024, 200 iterations, iso-line (0.05, 0.1)."""
+    containers = list(ME_CONTAINERS) if config is None else [config]
+    kwargs: dict[str, Any] = {"iterations": 20, "cvt_samples": 10_000} if quick else {}
+    return [time_map_elites(c, seed=seed, **kwargs) for c in containers]
+
+
+def run_bench(
+    name: str,
+    quick: bool = False,
+    out: str | Path | None = None,
+    seed: int = 0,
+    config: str | None = None,
+) -> dict[str, Any]:
     """Run benchmark `name`; returns (and optionally writes) its JSON record."""
     if name not in BENCHES:
         raise ValueError(f"unknown benchmark {name!r}; expected one of {sorted(BENCHES)}")
-    record = {"benchmark": name, "quick": quick, "machine": machine(), "results": BENCHES[name](quick)}
+    record = {
+        "benchmark": name,
+        "quick": quick,
+        "machine": machine(),
+        "results": BENCHES[name](quick, seed=seed, config=config),
+    }
     if out is not None:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps(record, indent=2) + "\n")

@@ -51,7 +51,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from qdrl.bench import run_bench
 
     try:
-        results = run_bench(args.name, quick=args.quick, out=args.out)
+        results = run_bench(args.name, quick=args.quick, out=args.out, seed=args.seed, config=args.config)
     except ValueError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
@@ -79,9 +79,14 @@ def main(argv: list[str] | None = None) -> int:
     p_list.set_defaults(fn=_cmd_list)
 
     p_bench = sub.add_parser("bench", help="throughput benchmarks; prints JSON")
-    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark (rl)")
+    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark: rl, map_elites")
     p_bench.add_argument("--quick", action="store_true", help="a small, fast version")
     p_bench.add_argument("--out", default=None, help="also write the JSON to this file")
+    p_bench.add_argument("--seed", type=int, default=0, help="random seed")
+    p_bench.add_argument(
+        "--config", default=None,
+        help="only one case: rl -> sac|td3; map_elites -> cvt1024|grid32|grid100",
+    )
     p_bench.set_defaults(fn=_cmd_bench)
 
     args = parser.parse_args(argv)

@@ -14,7 +14,7 @@ import math
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +49,7 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
     elif origin is typing.Literal:
         if value in typing.get_args(tp):
             return value
-    elif origin is tuple:
+    elif origin in (tuple, list, Sequence):
         item_tp = typing.get_args(tp)[0]
         if isinstance(value, list | tuple):
             return tuple(coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))

@@ -243,7 +243,10 @@ def run(
         # the time of its earlier sessions.
         wall_s = wall_offset + time.perf_counter() - started
         row = {"log_point": float(chunk), **row, "wall_s": wall_s}
+        # Throughput excludes compilation; QD runs also count evaluations.
         row["env_steps_per_s"] = row["env_steps"] / run_s if run_s > 0 else math.nan
+        if "evaluations" in row:
+            row["evaluations_per_s"] = row["evaluations"] / run_s if run_s > 0 else math.nan
         rows.append(row)
         _append_row(metrics_path, row)
         last = chunk == run_.num_chunks - 1
@@ -274,6 +277,8 @@ def run(
         "run_s": run_s,
         "env_steps_per_s": final.get("env_steps_per_s", math.nan),
     }
+    if "evaluations" in final:
+        summary["evaluations"] = int(final["evaluations"])
     summary.update({k: v for k, v in final.items() if k not in summary and k != "log_point"})
     summary.update(run_.finish(state, rows, out_dir))
     if log.plots and rows:

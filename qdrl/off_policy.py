@@ -118,12 +118,16 @@ def make_trainer(env: Env, agent: Agent, config: TrainConfig) -> Trainer:
         )
 
     def updates(agent_state: AgentState, buffer: buffers.ReplayBuffer, key: PRNGKey) -> Any:
-        def one(s: AgentState, k: PRNGKey) -> tuple[AgentState, Any]:
-            sample_key, update_key = jax.random.split(k)
-            batch = buffers.sample(buffer, sample_key, config.batch_size)
-            return agent.update(s, batch, update_key)
+        # All batches of the iteration come from one gather, then one update each.
+        sample_key, update_key = jax.random.split(key)
+        n = config.grad_steps_per_iter
+        flat = buffers.sample(buffer, sample_key, n * config.batch_size)
+        batches = jax.tree.map(lambda x: x.reshape((n, config.batch_size, *x.shape[1:])), flat)
 
-        s, metrics = jax.lax.scan(one, agent_state, jax.random.split(key, config.grad_steps_per_iter))
+        def one(s: AgentState, xs: tuple[Transition, PRNGKey]) -> tuple[AgentState, Any]:
+            return agent.update(s, xs[0], xs[1])
+
+        s, metrics = jax.lax.scan(one, agent_state, (batches, jax.random.split(update_key, n)))
         return s, jax.tree.map(jnp.mean, metrics)
 
     def iteration(ts: TrainState, _: None) -> tuple[TrainState, dict[str, Array]]:

@@ -1,4 +1,5 @@
-"""Learning-curve plots (PNG) from a run's metric rows, one run or several compared.
+"""Learning-curve plots (PNG) from a run's metric rows, one run or several compared,
+and fitness heatmaps of QD repertoires.
 
 Figures are built with matplotlib's object API (`matplotlib.figure.Figure`)
 rendered by the Agg canvas, never through `pyplot`: no display is needed, the
@@ -20,7 +21,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-__all__ = ["COUNTER_KEYS", "default_y_keys", "plot_comparison", "plot_curves"]
+__all__ = ["COUNTER_KEYS", "default_y_keys", "plot_comparison", "plot_curves", "plot_repertoire"]
 
 # Columns that count progress rather than measure it; never plotted as y by default.
 COUNTER_KEYS = frozenset(
@@ -209,6 +210,193 @@ def plot_comparison(
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.suptitle(title or y_key)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    return out
+
+
+# --- repertoires -------------------------------------------------------------------
+
+# Pixels per side of the raster that draws CVT cells (each pixel takes the colour
+# of its nearest centroid), and at most this many bins per side for projections.
+_CVT_RESOLUTION = 400
+_MAX_PROJECTION_BINS = 64
+
+
+def _repertoire_bounds(value: Any, dim: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full((dim,), float(arr))
+    if arr.shape != (dim,):
+        raise ValueError(f"{name} must be a scalar or have {dim} entries, got shape {arr.shape}")
+    return arr
+
+
+def _append_column(a: np.ndarray, value: float) -> np.ndarray:
+    """`a` with one more entry `value` along its last axis."""
+    return np.concatenate([a, np.full((*a.shape[:-1], 1), value)], axis=-1)
+
+
+def _max_by_bin(
+    points: np.ndarray, values: np.ndarray, lo: np.ndarray, hi: np.ndarray, bins: int
+) -> np.ndarray:
+    """(bins, bins) max of `values` per 2-D bin of `points` (N, 2) in the box; -inf where empty."""
+    idx = np.floor((points - lo) / (hi - lo) * bins).astype(np.int64)
+    idx = np.clip(idx, 0, bins - 1)
+    out = np.full((bins, bins), -np.inf)
+    np.maximum.at(out, (idx[:, 0], idx[:, 1]), values)
+    return out
+
+
+def plot_repertoire(
+    repertoire: Any,
+    path: str | Path,
+    low: float | Sequence[float],
+    high: float | Sequence[float],
+    title: str = "",
+    dims: tuple[int, int] = (0, 1),
+    cmap: str = "viridis",
+    vmin: float | None = None,
+    vmax: float | None = None,
+) -> Path:
+    """Writes a PNG heatmap of the elites' fitness over two descriptor dimensions.
+
+    The kind of repertoire is read from its attributes (duck typing, so plotting
+    needs no QD import): a `grid_shape` means a grid, `centroids` without a grid
+    shape a CVT archive, neither an unstructured archive.
+
+    - grid: one rectangle per cell; with D > 2 descriptors, each rectangle shows the
+      MAX fitness over the other dimensions (a projection on `dims`);
+    - CVT, D = 2: the Voronoi cells, drawn as a fine raster where each pixel takes
+      its nearest centroid's fitness; D > 2: the filled cells' centroids projected
+      on `dims`, max fitness per bin of a regular 2-D grid;
+    - unstructured: a scatter of the elites' descriptors on `dims`, fittest on top.
+
+    Empty cells are left white. A 1-D repertoire is drawn as a strip.
+
+    Args:
+      repertoire: a repertoire with `fitnesses` (C,) (-inf where empty) and
+        `descriptors` (C, D), e.g. `qdrl.qd.repertoires.CellRepertoire`.
+      path: PNG to write; its parent directory is created if needed.
+      low, high: descriptor bounds for the axes (scalars or D values).
+      title: figure title.
+      dims: the two descriptor dimensions shown (x, y) when D >= 2.
+      cmap: matplotlib colormap name.
+      vmin, vmax: colour range; default the range of the stored fitnesses (fix it
+        to compare several plots).
+
+    Returns:
+      `path`.
+    """
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    fitnesses = np.asarray(repertoire.fitnesses, dtype=np.float64)
+    descriptors = np.asarray(repertoire.descriptors, dtype=np.float64)
+    num_dims = descriptors.shape[1]
+    lo = _repertoire_bounds(low, num_dims, "low")
+    hi = _repertoire_bounds(high, num_dims, "high")
+    grid_shape = getattr(repertoire, "grid_shape", None)
+    centroids = getattr(repertoire, "centroids", None)
+    centroids = None if centroids is None else np.asarray(centroids, dtype=np.float64)
+    grid_lo = np.asarray(getattr(repertoire, "low", None) or lo, dtype=np.float64)
+    grid_hi = np.asarray(getattr(repertoire, "high", None) or hi, dtype=np.float64)
+
+    strip = num_dims == 1
+    if strip:
+        # A strip: a dummy second dimension of range [0, 1] with every point at 0.5.
+        descriptors = _append_column(descriptors, 0.5)
+        centroids = None if centroids is None else _append_column(centroids, 0.5)
+        lo, hi = _append_column(lo, 0.0), _append_column(hi, 1.0)
+        grid_lo, grid_hi = _append_column(grid_lo, 0.0), _append_column(grid_hi, 1.0)
+        grid_shape = None if grid_shape is None else (*grid_shape, 1)
+        dims, num_dims = (0, 1), 2
+    dx, dy = (int(d) for d in dims)
+    if dx == dy or not (0 <= dx < num_dims and 0 <= dy < num_dims):
+        raise ValueError(f"dims must be two distinct dimensions in [0, {num_dims}), got {dims}")
+    if np.any(hi <= lo):
+        raise ValueError(f"need low < high, got low={lo.tolist()}, high={hi.tolist()}")
+
+    filled = fitnesses > -np.inf
+    shown = fitnesses[filled & np.isfinite(fitnesses)]
+    lo_c = vmin if vmin is not None else (float(shown.min()) if shown.size else 0.0)
+    hi_c = vmax if vmax is not None else (float(shown.max()) if shown.size else 1.0)
+    norm = Normalize(lo_c, hi_c if hi_c > lo_c else lo_c + 1.0)
+    colours = colormaps[cmap].with_extremes(bad="white")
+
+    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    ax.set_facecolor("white")
+    box = (lo[dx], hi[dx], lo[dy], hi[dy])
+
+    if grid_shape is not None:
+        values = np.moveaxis(fitnesses.reshape(grid_shape), (dx, dy), (0, 1))
+        values = values.reshape(values.shape[0], values.shape[1], -1).max(axis=-1)
+        x_edges = np.linspace(grid_lo[dx], grid_hi[dx], values.shape[0] + 1)
+        y_edges = np.linspace(grid_lo[dy], grid_hi[dy], values.shape[1] + 1)
+        image = np.ma.masked_invalid(np.where(values > -np.inf, values, np.nan).T)
+        ax.pcolormesh(x_edges, y_edges, image, cmap=colours, norm=norm)
+    elif centroids is not None and num_dims == 2:
+        from scipy.spatial import cKDTree
+
+        xs = np.linspace(box[0], box[1], _CVT_RESOLUTION)
+        ys = np.linspace(box[2], box[3], _CVT_RESOLUTION)
+        grid_x, grid_y = np.meshgrid(xs, ys)  # rows follow y
+        pixels = np.stack([grid_x.ravel(), grid_y.ravel()], axis=-1)
+        _, nearest = cKDTree(centroids[:, [dx, dy]]).query(pixels)
+        values = fitnesses[nearest].reshape(grid_x.shape)
+        image = np.ma.masked_invalid(np.where(values > -np.inf, values, np.nan))
+        ax.imshow(
+            image,
+            origin="lower",
+            extent=box,
+            aspect="auto",
+            cmap=colours,
+            norm=norm,
+            interpolation="nearest",
+        )
+    elif centroids is not None:
+        bins = int(min(_MAX_PROJECTION_BINS, max(8, round(len(fitnesses) ** 0.5))))
+        pts_lo, pts_hi = np.array([lo[dx], lo[dy]]), np.array([hi[dx], hi[dy]])
+        values = _max_by_bin(
+            centroids[filled][:, [dx, dy]], fitnesses[filled], pts_lo, pts_hi, bins
+        )
+        image = np.ma.masked_invalid(np.where(values > -np.inf, values, np.nan).T)
+        ax.pcolormesh(
+            np.linspace(box[0], box[1], bins + 1),
+            np.linspace(box[2], box[3], bins + 1),
+            image,
+            cmap=colours,
+            norm=norm,
+        )
+    else:
+        order = np.argsort(fitnesses[filled], kind="stable")  # fittest drawn last, on top
+        points = descriptors[filled][order]
+        ax.scatter(
+            points[:, dx],
+            points[:, dy],
+            c=fitnesses[filled][order],
+            cmap=colours,
+            norm=norm,
+            s=12,
+            edgecolors="none",
+        )
+
+    if not shown.size:
+        ax.text(0.5, 0.5, "empty repertoire", ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlim(box[0], box[1])
+    ax.set_ylim(box[2], box[3])
+    ax.set_xlabel(f"descriptor {dx}")
+    if strip:
+        ax.set_yticks([])
+    else:
+        ax.set_ylabel(f"descriptor {dy}")
+    fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=ax, label="fitness")
+    if title:
+        fig.suptitle(title)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)

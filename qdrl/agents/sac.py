@@ -267,12 +267,15 @@ def make_sac(config: SACConfig, obs_size: int, action_size: int) -> Agent:
             hp["reward_scale"],
             critic_key,
         )
+        # The actor's gradient is taken against the critic of before this step, like
+        # the critic's and the temperature's: the three gradients are independent,
+        # which lets XLA run them concurrently (Haarnoja et al.'s implementation also
+        # computes all gradients from the same parameters).
+        (actor_loss, log_prob), actor_grads = jax.value_and_grad(losses.actor, has_aux=True)(
+            state.policy_params, state.critic_params, alpha, transitions.obs, actor_key
+        )
         critic_params, critic_opt_state = adam_step(
             state.critic_params, state.critic_opt_state, critic_grads, hp["critic_lr"]
-        )
-
-        (actor_loss, log_prob), actor_grads = jax.value_and_grad(losses.actor, has_aux=True)(
-            state.policy_params, critic_params, alpha, transitions.obs, actor_key
         )
         policy_params, policy_opt_state = adam_step(
             state.policy_params, state.policy_opt_state, actor_grads, hp["actor_lr"]

@@ -41,9 +41,20 @@ class AddResult(NamedTuple):
 class Repertoire(Protocol):
     """What the loop, emitters and metrics rely on (see qdrl.qd.repertoires)."""
 
-    genotypes: Genotype  # leaves (C, ...)
-    fitnesses: Array  # (C,) -inf where empty
-    descriptors: Array  # (C, D)
+    @property
+    def genotypes(self) -> Genotype:
+        """Leaves (C, ...)."""
+        ...
+
+    @property
+    def fitnesses(self) -> Array:
+        """(C,) float32, -inf where empty."""
+        ...
+
+    @property
+    def descriptors(self) -> Array:
+        """(C, D) float32."""
+        ...
 
     def add(
         self, genotypes: Genotype, descriptors: Descriptor, fitnesses: Fitness
@@ -61,7 +72,9 @@ class Emitter(Protocol):
 
     batch_size: int
 
-    def init(self, key: PRNGKey, repertoire: Repertoire, evaluation: Evaluation, genotypes: Genotype) -> Any:
+    def init(
+        self, key: PRNGKey, repertoire: Repertoire, evaluation: Evaluation, genotypes: Genotype
+    ) -> Any:
         """Emitter state, given the initial population and its evaluation."""
         ...
 

@@ -44,18 +44,31 @@ def _check_evaluation(n: int, fitnesses: Array, descriptors: Array, descriptor_s
         )
 
 
+def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
+    return Evaluation(
+        fitnesses=jnp.asarray(fitnesses, jnp.float32),
+        descriptors=jnp.asarray(descriptors, jnp.float32),
+        extras={},
+        env_steps=jnp.zeros((), jnp.int32),
+    )
+
+
 class MapElites:
     """MAP-Elites over any repertoire, emitter and scoring function."""
 
     def __init__(
         self,
-        scoring_fn: ScoringFn,
+        scoring_fn: ScoringFn | None,
         emitter: Emitter,
         repertoire: Repertoire,
         qd_offset: float = 0.0,
         metrics_fn: Callable[[Any, float], dict[str, Array]] = qd_metrics,
     ) -> None:
-        """`repertoire` is the empty container to fill; `qd_offset` as in `qd_metrics`."""
+        """`repertoire` is the empty container to fill; `qd_offset` as in `qd_metrics`.
+
+        `scoring_fn` may be None when every evaluation happens outside JAX
+        (`init_values`, `ask`, `tell_values`).
+        """
         self.scoring_fn = scoring_fn
         self.emitter = emitter
         self.empty_repertoire = repertoire
@@ -65,10 +78,16 @@ class MapElites:
 
     def init(self, genotypes: Genotype, key: PRNGKey) -> QDState:
         """Evaluate an initial population, fill the repertoire with it, start the emitter."""
-        eval_key, emitter_key, key = jax.random.split(key, 3)
-        evaluation = self.scoring_fn(genotypes, eval_key)
+        eval_key, key = jax.random.split(key)
+        return self.init_from_evaluation(genotypes, self._score(genotypes, eval_key), key)
+
+    def init_from_evaluation(
+        self, genotypes: Genotype, evaluation: Evaluation, key: PRNGKey
+    ) -> QDState:
+        """Fill the repertoire with an evaluated initial population and start the emitter."""
         n = int(evaluation.fitnesses.shape[0])
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
+        emitter_key, key = jax.random.split(key)
         repertoire, _ = self.empty_repertoire.add(
             genotypes, evaluation.descriptors, evaluation.fitnesses
         )
@@ -81,6 +100,20 @@ class MapElites:
             evaluations=jnp.asarray(n, jnp.int32),
             env_steps=jnp.asarray(evaluation.env_steps, jnp.int32),
         )
+
+    def init_values(
+        self, genotypes: Genotype, fitnesses: Fitness, descriptors: Descriptor, key: PRNGKey
+    ) -> QDState:
+        """`init_from_evaluation` for plain arrays computed outside JAX (see `tell_values`)."""
+        return self.init_from_evaluation(genotypes, _evaluation(fitnesses, descriptors), key)
+
+    def _score(self, genotypes: Genotype, key: PRNGKey) -> Evaluation:
+        if self.scoring_fn is None:
+            raise ValueError(
+                "this MapElites has no scoring function: evaluate outside and use "
+                "init_values / ask / tell_values"
+            )
+        return self.scoring_fn(genotypes, key)
 
     def ask(self, state: QDState) -> tuple[Genotype, QDState]:
         """Offspring to evaluate, and the state with its key moved on."""
@@ -122,19 +155,13 @@ class MapElites:
         descriptors: Descriptor,
     ) -> tuple[QDState, dict[str, Array]]:
         """`tell` for plain arrays of fitnesses and descriptors (e.g. computed with NumPy)."""
-        evaluation = Evaluation(
-            fitnesses=jnp.asarray(fitnesses, jnp.float32),
-            descriptors=jnp.asarray(descriptors, jnp.float32),
-            extras={},
-            env_steps=jnp.zeros((), jnp.int32),
-        )
-        return self.tell(state, genotypes, evaluation)
+        return self.tell(state, genotypes, _evaluation(fitnesses, descriptors))
 
     def step(self, state: QDState) -> tuple[QDState, dict[str, Array]]:
         """One iteration: ask, evaluate, tell."""
         offspring, state = self.ask(state)
         key, eval_key = jax.random.split(state.key)
-        evaluation = self.scoring_fn(offspring, eval_key)
+        evaluation = self._score(offspring, eval_key)
         return self.tell(state._replace(key=key), offspring, evaluation)
 
     def run(self, state: QDState, num_steps: int) -> tuple[QDState, dict[str, Array]]:

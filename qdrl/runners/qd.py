@@ -124,7 +124,7 @@ def build_task(data: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
 class QDRun:
     """MAP-Elites (grid or CVT repertoire) with a GA emitter on a standard task."""
 
-    progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness")
+    progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness", "evaluations_per_s")
 
     def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig, default_kind: str) -> None:
         rep_data = dict(spec.get("repertoire", {}))
@@ -155,7 +155,10 @@ class QDRun:
         from qdrl.qd.repertoires.cvt import cvt_centroids
 
         task, rc, ec = self._task, self.rep_cfg, self.emitter_cfg
-        example = np.zeros((task.genotype_size,), np.float32)
+        # Unbounded genotypes (policy parameters) are not clipped.
+        lo = task.genotype_low if np.isfinite(task.genotype_low) else None
+        hi = task.genotype_high if np.isfinite(task.genotype_high) else None
+        example = task.example_genotype()
         if rc.kind == "grid":
             repertoire = grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
         else:
@@ -163,10 +166,10 @@ class QDRun:
                 key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
                 num_iters=rc.kmeans_iters,
             )
-            repertoire = cvt_repertoire(example, centroids)
+            repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
         if ec.kind == "isoline":
             emitter = isoline_emitter(
-                ec.batch_size, ec.iso_sigma, ec.line_sigma, task.genotype_low, task.genotype_high,
+                ec.batch_size, ec.iso_sigma, ec.line_sigma, lo, hi,
                 variation_percentage=ec.variation_percentage,
             )
         else:
@@ -221,7 +224,7 @@ class QDRun:
             rep, out_dir / "plots" / "repertoire.png", self._task.descriptor_low,
             self._task.descriptor_high, title=f"{self.algorithm} on {self.task}",
         )
-        return {"evaluations": int(state.evaluations), "qd_offset": self._task.qd_offset}
+        return {"qd_offset": self._task.qd_offset}
 
 
 @register("map_elites")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import jax
 import numpy as np
@@ -15,6 +15,8 @@ from qdrl.envs import env_names, make
 from qdrl.envs.brax import BACKENDS, STATE_DESCRIPTORS
 from qdrl.experiment import ExperimentConfig, register
 from qdrl.off_policy import TrainConfig, TrainState, make_trainer
+from qdrl.qd.metrics import qd_metrics
+from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
 
 Backend = Literal["spring", "positional", "generalized", "mjx"]
 assert set(BACKENDS) == {"spring", "positional", "generalized", "mjx"}
@@ -44,10 +46,47 @@ class EnvConfig:
             )
 
 
-class OffPolicyRun:
-    """A SAC or TD3 run: trainer chunks plus a deterministic evaluation per log point."""
+@dataclasses.dataclass(frozen=True)
+class ArchiveConfig:
+    """The `[archive]` section: the passive archive that measures the run with QD metrics.
 
-    progress_keys: tuple[str, ...] = ("eval_return",)
+    Each evaluation's episodes are offered to it as (episode descriptor, return).
+    """
+
+    descriptor: Literal["final", "mean"] = "final"  # last or episode-averaged state descriptor
+    grid_shape: tuple[int, ...] = (32, 32)  # cells per descriptor dimension
+    low: tuple[float, ...] = (-50.0, -50.0)  # descriptor lower bounds (edge cells beyond)
+    high: tuple[float, ...] = (50.0, 50.0)  # descriptor upper bounds
+    qd_offset: float = 0.0  # QD score = sum over cells of (return - qd_offset)
+
+    def check(self) -> None:
+        if not self.grid_shape or any(n <= 0 for n in self.grid_shape):
+            raise ValueError(
+                f"archive.grid_shape: expected a list of positive integers, got {list(self.grid_shape)}"
+            )
+        if len(self.low) != len(self.grid_shape) or len(self.high) != len(self.grid_shape):
+            raise ValueError(
+                f"archive.low / archive.high: expected {len(self.grid_shape)} entries each "
+                f"(one per grid dimension), got {list(self.low)} and {list(self.high)}"
+            )
+        if any(lo >= hi for lo, hi in zip(self.low, self.high, strict=True)):
+            raise ValueError(
+                f"archive.low: expected every entry below archive.high, got {list(self.low)} "
+                f"and {list(self.high)}"
+            )
+
+
+class RLState(NamedTuple):
+    """A run's state: the trainer's, plus the passive archive of evaluated episodes."""
+
+    train: TrainState
+    archive: CellRepertoire
+
+
+class OffPolicyRun:
+    """A SAC or TD3 run: trainer chunks, then a deterministic evaluation fed to a passive archive."""
+
+    progress_keys: tuple[str, ...] = ("eval_return", "coverage")
 
     def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
         from qdrl.agents import AGENTS
@@ -56,51 +95,72 @@ class OffPolicyRun:
         env_cfg = build(EnvConfig, spec.get("env", {}), "env")
         agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
         train_cfg = build(TrainConfig, spec.get("train", {}), "train")
+        archive_cfg = build(ArchiveConfig, spec.get("archive", {}), "archive")
         self.algorithm = exp.algorithm
         self.task = env_cfg.name
-        self.sections = {"env": env_cfg, "agent": agent_cfg, "train": train_cfg}
+        self.sections = {"env": env_cfg, "agent": agent_cfg, "train": train_cfg, "archive": archive_cfg}
+        self.archive_cfg = archive_cfg
         extra = {} if env_cfg.name == "point" else {"state_descriptor": env_cfg.state_descriptor}
         self.env = make(env_cfg.name, env_cfg.backend, env_cfg.episode_length, **extra)
         try:
             self.agent = make_agent(agent_cfg, self.env.observation_size, self.env.action_size)
         except ValueError as e:
             raise ConfigError(f"agent: {e}") from e
+        if len(archive_cfg.grid_shape) != self.env.descriptor_size:
+            raise ConfigError(
+                f"archive.grid_shape: expected {self.env.descriptor_size} entries (the state "
+                f"descriptor size of {env_cfg.name!r}), got {list(archive_cfg.grid_shape)}"
+            )
         self.trainer = make_trainer(self.env, self.agent, train_cfg)
         self.num_chunks = train_cfg.num_chunks
         self._eval_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x5EED)
         self._chunk: Any = None
-        self._eval: Any = None
 
-    def init(self, key: jax.Array) -> TrainState:
+    def init(self, key: jax.Array) -> RLState:
+        cfg = self.archive_cfg
+        archive = passive_archive("grid", grid_shape=cfg.grid_shape, low=cfg.low, high=cfg.high)
         # jit gives every leaf its own buffer (eager init aliases target and online
         # parameters), which the donating chunk function requires.
-        return jax.jit(self.trainer.init)(key)
+        return jax.jit(lambda k: RLState(self.trainer.init(k), archive))(key)
 
-    def compile(self, state: TrainState) -> float:
+    def chunk(self, state: RLState) -> tuple[RLState, dict[str, Any]]:
+        """Train for one log interval, evaluate, and offer the episodes to the archive."""
+        train, metrics = self.trainer.run_chunk(state.train)
+        ev = self.trainer.evaluate(train.agent, jax.random.fold_in(self._eval_key, train.env_steps))
+        desc = ev["eval_final_desc"] if self.archive_cfg.descriptor == "final" else ev["eval_mean_desc"]
+        archive = observe(state.archive, desc, ev["eval_returns"])
+        out = dict(metrics)
+        out.update({k: ev[k] for k in ("eval_return", "eval_return_std", "eval_length")})
+        out.update(qd_metrics(archive, self.archive_cfg.qd_offset))
+        return RLState(train, archive), out
+
+    def compile(self, state: RLState) -> float:
         import time
 
         t0 = time.perf_counter()
-        self._chunk = jax.jit(self.trainer.run_chunk, donate_argnums=0).lower(state).compile()
-        self._eval = jax.jit(self.trainer.evaluate).lower(state.agent, self._eval_key).compile()
+        self._chunk = jax.jit(self.chunk, donate_argnums=0).lower(state).compile()
         return time.perf_counter() - t0
 
-    def run_chunk(self, state: TrainState) -> tuple[TrainState, Any]:
+    def run_chunk(self, state: RLState) -> tuple[RLState, Any]:
         return self._chunk(state)
 
-    def log_row(self, state: TrainState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
-        ev = self._eval(state.agent, jax.random.fold_in(self._eval_key, chunk))
-        row = {
-            "env_steps": float(state.env_steps),
-            "grad_steps": float(state.grad_steps),
-            "eval_return": float(ev["eval_return"]),
-            "eval_return_std": float(ev["eval_return_std"]),
-            "eval_length": float(ev["eval_length"]),
-        }
-        row.update({k: float(v) for k, v in jax.device_get(chunk_metrics).items()})
+    def log_row(self, state: RLState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
+        row = {"env_steps": float(state.train.env_steps), "grad_steps": float(state.train.grad_steps)}
+        m = jax.device_get(chunk_metrics)
+        for key in ("eval_return", "eval_return_std", "eval_length"):
+            row[key] = float(m.pop(key))
+        row.update({k: float(v) for k, v in m.items()})
         return row
 
-    def finish(self, state: TrainState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
-        return {"grad_steps": int(np.asarray(state.grad_steps))}
+    def finish(self, state: RLState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
+        from qdrl import plotting
+
+        cfg = self.archive_cfg
+        plotting.plot_repertoire(
+            jax.device_get(state.archive), out_dir / "plots" / "archive.png", cfg.low, cfg.high,
+            title=f"{self.algorithm} on {self.task}: passive archive ({cfg.descriptor} descriptor)",
+        )
+        return {"grad_steps": int(np.asarray(state.train.grad_steps))}
 
 
 @register("sac")

@@ -1,0 +1,346 @@
+"""Genetic variation operators and the GA emitter of MAP-Elites.
+
+Operators act on pytrees of genotypes whose leaves carry a leading batch axis;
+each individual is treated independently. The emitter is QDax's `MixingEmitter`:
+part of the batch comes from a two-parent variation (crossover), the rest from a
+one-parent mutation, all parents drawn uniformly from the repertoire.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from qdrl.qd.base import AddResult, Evaluation, Repertoire
+from qdrl.types import Array, Genotype, PRNGKey
+
+VariationFn = Callable[[Genotype, Genotype, PRNGKey], Genotype]
+"""(parents_1, parents_2, key) -> offspring, all with the same batch size."""
+MutationFn = Callable[[Genotype, PRNGKey], Genotype]
+"""(parents, key) -> offspring of the same shape."""
+
+
+def _batch_size(x: Genotype) -> int:
+    leaves = jax.tree.leaves(x)
+    if not leaves:
+        raise ValueError("genotypes: expected a pytree with at least one array leaf")
+    return int(leaves[0].shape[0])
+
+
+def _same_structure_leaves(treedef: Any, x2: Genotype) -> list[Array]:
+    if jax.tree.structure(x2) != treedef:
+        raise ValueError(f"parents differ in structure: {treedef} vs {jax.tree.structure(x2)}")
+    return list(jax.tree.leaves(x2))
+
+
+def _per_individual(leaf: Array) -> Array:
+    """A leaf (n, ...) flattened to (n, d): operators pick genes over all of an individual's entries."""
+    return leaf.reshape(leaf.shape[0], -1)
+
+
+def isoline_variation(
+    x1: Genotype,
+    x2: Genotype,
+    key: PRNGKey,
+    iso_sigma: float,
+    line_sigma: float,
+    minval: float | None = None,
+    maxval: float | None = None,
+) -> Genotype:
+    """Iso+LineDD: x = x1 + iso_sigma N(0, I) + line_sigma N(0, 1) (x2 - x1), optionally clipped.
+
+    Vassiliades & Mouret 2018, "Discovering the elite hypervolume by leveraging
+    interspecies correlation" (GECCO). The line coefficient is one scalar per
+    individual, shared by all leaves of its pytree (QDax draws one per gene, which
+    loses the "line" direction). Keys: `line_key, iso_key = split(key)`; the line
+    coefficients are `normal(line_key, (n,))`, the isotropic noise of leaf i is
+    `normal(split(iso_key, num_leaves)[i], leaf.shape)`.
+    """
+    leaves_1, treedef = jax.tree.flatten(x1)
+    leaves_2 = _same_structure_leaves(treedef, x2)
+    n = _batch_size(x1)
+    line_key, iso_key = jax.random.split(key)
+    line = jax.random.normal(line_key, (n,))
+    iso_keys = jax.random.split(iso_key, len(leaves_1))
+    children = []
+    for a, b, k in zip(leaves_1, leaves_2, iso_keys, strict=True):
+        if a.shape != b.shape:
+            raise ValueError(f"isoline_variation: parents differ in shape, {a.shape} vs {b.shape}")
+        coeff = line.reshape((n,) + (1,) * (a.ndim - 1)).astype(a.dtype)
+        child = (
+            a + iso_sigma * jax.random.normal(k, a.shape, a.dtype) + line_sigma * coeff * (b - a)
+        )
+        if minval is not None or maxval is not None:
+            child = jnp.clip(child, minval, maxval)
+        children.append(child)
+    return jax.tree.unflatten(treedef, children)
+
+
+def _gene_masks(key: PRNGKey, n: int, d: int, num: int) -> Array:
+    """(n, d) bool, each row with exactly `num` True entries at uniformly random positions."""
+    if num == 0:
+        return jnp.zeros((n, d), bool)
+    if num == d:
+        return jnp.ones((n, d), bool)
+    # the `num` smallest of d iid uniforms are a uniform subset; one batched argsort compiles
+    # much faster than a vmapped jax.random.permutation
+    ranks = jnp.argsort(jnp.argsort(jax.random.uniform(key, (n, d)), axis=1), axis=1)
+    return ranks < num
+
+
+def _polynomial_mutation_leaf(
+    x: Array, key: PRNGKey, eta: float, num_to_mutate: int, minval: float, maxval: float
+) -> Array:
+    """Mutates `num_to_mutate` entries of each row of x (n, d)."""
+    mask_key, rand_key = jax.random.split(key)
+    mask = _gene_masks(mask_key, x.shape[0], x.shape[1], num_to_mutate)
+    span = maxval - minval
+    x = jnp.clip(x, minval, maxval)
+    delta_1 = (x - minval) / span
+    delta_2 = (maxval - x) / span
+    rand = jax.random.uniform(rand_key, x.shape, x.dtype)
+    power = 1.0 / (eta + 1.0)
+    low_side = (2.0 * rand + (1.0 - 2.0 * rand) * (1.0 - delta_1) ** (eta + 1.0)) ** power - 1.0
+    high_side = (
+        1.0 - (2.0 * (1.0 - rand) + 2.0 * (rand - 0.5) * (1.0 - delta_2) ** (eta + 1.0)) ** power
+    )
+    delta_q = jnp.where(rand < 0.5, low_side, high_side)
+    mutated = jnp.where(mask, x + delta_q * span, x)
+    return jnp.clip(mutated, minval, maxval)
+
+
+def polynomial_mutation(
+    x: Genotype,
+    key: PRNGKey,
+    eta: float,
+    proportion_to_mutate: float,
+    minval: float,
+    maxval: float,
+) -> Genotype:
+    """Deb's bounded polynomial mutation of `floor(proportion_to_mutate * d)` genes per individual.
+
+    Deb & Goyal 1996, "A combined genetic adaptive search (GeneAS) for engineering
+    design"; the bounded form of NSGA-II / pymoo. For a chosen gene x in
+    [minval, maxval] with delta_1 = (x - minval) / (maxval - minval), delta_2 =
+    (maxval - x) / (maxval - minval), u ~ U(0, 1) and p = 1 / (eta + 1):
+    delta_q = (2u + (1 - 2u)(1 - delta_1)^(eta+1))^p - 1 if u < 0.5, else
+    1 - (2(1 - u) + 2(u - 0.5)(1 - delta_2)^(eta+1))^p; x' = x + delta_q
+    (maxval - minval), which stays in the bounds. Larger eta, smaller steps. The
+    genes are chosen without replacement, as in QDax; QDax writes delta_i where
+    Deb writes 1 - delta_i (and clips the result). The whole output is clipped to
+    [minval, maxval]; d counts all entries of an individual in each leaf. Keys:
+    leaf i uses `mask_key, rand_key = split(split(key, num_leaves)[i])`, with
+    u = `uniform(rand_key, (n, d))`.
+    """
+    if not 0.0 <= proportion_to_mutate <= 1.0:
+        raise ValueError(f"proportion_to_mutate must be in [0, 1], got {proportion_to_mutate}")
+    if not minval < maxval:
+        raise ValueError(f"minval ({minval}) must be below maxval ({maxval})")
+    leaves, treedef = jax.tree.flatten(x)
+    _batch_size(x)
+    leaf_keys = jax.random.split(key, len(leaves))
+    children = []
+    for leaf, leaf_key in zip(leaves, leaf_keys, strict=True):
+        flat = _per_individual(leaf)
+        num = int(proportion_to_mutate * flat.shape[1])
+        child = _polynomial_mutation_leaf(flat, leaf_key, eta, num, minval, maxval)
+        children.append(child.reshape(leaf.shape))
+    return jax.tree.unflatten(treedef, children)
+
+
+def polynomial_crossover(
+    x1: Genotype,
+    x2: Genotype,
+    key: PRNGKey,
+    proportion_var_to_change: float,
+) -> Genotype:
+    """QDax's "polynomial crossover": x1 with `floor(proportion_var_to_change * d)` genes taken from x2.
+
+    Despite its name this is a uniform gene exchange (QDax
+    `mutation_operators.polynomial_crossover`): per individual, that many gene
+    positions, drawn uniformly without replacement (QDax draws with replacement,
+    so it may change fewer), are copied from the second parent.
+    """
+    if not 0.0 <= proportion_var_to_change <= 1.0:
+        raise ValueError(
+            f"proportion_var_to_change must be in [0, 1], got {proportion_var_to_change}"
+        )
+    leaves_1, treedef = jax.tree.flatten(x1)
+    leaves_2 = _same_structure_leaves(treedef, x2)
+    n = _batch_size(x1)
+    leaf_keys = jax.random.split(key, len(leaves_1))
+    children = []
+    for a, b, leaf_key in zip(leaves_1, leaves_2, leaf_keys, strict=True):
+        if a.shape != b.shape:
+            raise ValueError(
+                f"polynomial_crossover: parents differ in shape, {a.shape} vs {b.shape}"
+            )
+        flat_a, flat_b = _per_individual(a), _per_individual(b)
+        d = flat_a.shape[1]
+        masks = _gene_masks(leaf_key, n, d, int(proportion_var_to_change * d))
+        children.append(jnp.where(masks, flat_b, flat_a).reshape(a.shape))
+    return jax.tree.unflatten(treedef, children)
+
+
+@dataclasses.dataclass(eq=False)
+class GAEmitter:
+    """MAP-Elites' genetic emitter: variation of two parents and mutation of one (QDax `MixingEmitter`).
+
+    Mouret & Clune 2015, "Illuminating search spaces by mapping elites". The first
+    `num_variation = floor(batch_size * variation_percentage)` offspring are
+    `variation_fn(p1, p2, key)` of parents drawn uniformly from the repertoire, the
+    remaining `num_mutation` are `mutation_fn(p, key)`. Stateless (state None).
+    """
+
+    batch_size: int
+    variation_fn: VariationFn | None
+    mutation_fn: MutationFn | None
+    variation_percentage: float
+
+    def __post_init__(self) -> None:
+        if self.batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
+        if not 0.0 <= self.variation_percentage <= 1.0:
+            raise ValueError(
+                f"variation_percentage must be in [0, 1], got {self.variation_percentage}"
+            )
+        if self.num_variation > 0 and self.variation_fn is None:
+            raise ValueError(
+                f"{self.num_variation} offspring per batch come from variation but variation_fn is None"
+            )
+        if self.num_mutation > 0 and self.mutation_fn is None:
+            raise ValueError(
+                f"{self.num_mutation} offspring per batch come from mutation but mutation_fn is None"
+            )
+
+    @property
+    def num_variation(self) -> int:
+        """Offspring per batch made by `variation_fn` (the first ones)."""
+        # the epsilon keeps e.g. 0.29 * 100 = 28.999999999999996 at 29
+        return min(self.batch_size, math.floor(self.batch_size * self.variation_percentage + 1e-9))
+
+    @property
+    def num_mutation(self) -> int:
+        """Offspring per batch made by `mutation_fn` (the last ones)."""
+        return self.batch_size - self.num_variation
+
+    def init(
+        self, key: PRNGKey, repertoire: Repertoire, evaluation: Evaluation, genotypes: Genotype
+    ) -> None:
+        """No state."""
+        del key, repertoire, evaluation, genotypes
+        return None
+
+    def emit(self, state: None, repertoire: Repertoire, key: PRNGKey) -> Genotype:
+        """`batch_size` offspring: variations first, then mutations."""
+        del state
+        key_1, key_2, key_variation, key_3, key_mutation = jax.random.split(key, 5)
+        parts = []
+        if self.num_variation > 0:
+            assert self.variation_fn is not None
+            x1 = repertoire.sample(key_1, self.num_variation)
+            x2 = repertoire.sample(key_2, self.num_variation)
+            parts.append(self.variation_fn(x1, x2, key_variation))
+        if self.num_mutation > 0:
+            assert self.mutation_fn is not None
+            x = repertoire.sample(key_3, self.num_mutation)
+            parts.append(self.mutation_fn(x, key_mutation))
+        if len(parts) == 1:
+            return parts[0]
+        return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *parts)
+
+    def update(
+        self,
+        state: None,
+        repertoire: Repertoire,
+        genotypes: Genotype,
+        evaluation: Evaluation,
+        added: AddResult,
+        key: PRNGKey,
+    ) -> None:
+        """No state to update."""
+        del repertoire, genotypes, evaluation, added, key
+        return state
+
+
+def gaussian_mutation(
+    x: Genotype,
+    key: PRNGKey,
+    sigma: float,
+    minval: float | None = None,
+    maxval: float | None = None,
+) -> Genotype:
+    """x + sigma N(0, I) on every leaf, optionally clipped: Iso+LineDD of a parent with itself."""
+    leaves, treedef = jax.tree.flatten(x)
+    keys = jax.random.split(key, len(leaves))
+    children = []
+    for leaf, k in zip(leaves, keys, strict=True):
+        child = leaf + sigma * jax.random.normal(k, leaf.shape, leaf.dtype)
+        if minval is not None or maxval is not None:
+            child = jnp.clip(child, minval, maxval)
+        children.append(child)
+    return jax.tree.unflatten(treedef, children)
+
+
+def isoline_emitter(
+    batch_size: int,
+    iso_sigma: float,
+    line_sigma: float,
+    minval: float | None = None,
+    maxval: float | None = None,
+    variation_percentage: float = 1.0,
+) -> GAEmitter:
+    """The emitter of (CVT-)MAP-Elites with Iso+LineDD (QDax's MAP-Elites examples).
+
+    A `variation_percentage` share of the offspring comes from `isoline_variation`;
+    the rest (none by default, as in QDax) from `gaussian_mutation` with
+    `iso_sigma`. QDax's examples use iso_sigma 0.005 to 0.05 and line_sigma 0.05 to
+    0.1 (in units of the genotype's range).
+    """
+    variation = functools.partial(
+        isoline_variation, iso_sigma=iso_sigma, line_sigma=line_sigma, minval=minval, maxval=maxval
+    )
+    mutation = functools.partial(gaussian_mutation, sigma=iso_sigma, minval=minval, maxval=maxval)
+    return GAEmitter(batch_size, variation, mutation, variation_percentage=variation_percentage)
+
+
+def polynomial_emitter(
+    batch_size: int,
+    eta: float,
+    proportion_to_mutate: float,
+    minval: float,
+    maxval: float,
+    variation_percentage: float = 0.0,
+    proportion_var_to_change: float = 0.5,
+) -> GAEmitter:
+    """Polynomial mutation, and a `variation_percentage` share of `polynomial_crossover` (QDax MOME / NSGA-II setup)."""
+    variation: VariationFn = functools.partial(
+        polynomial_crossover, proportion_var_to_change=proportion_var_to_change
+    )
+    mutation: MutationFn = functools.partial(
+        polynomial_mutation,
+        eta=eta,
+        proportion_to_mutate=proportion_to_mutate,
+        minval=minval,
+        maxval=maxval,
+    )
+    return GAEmitter(batch_size, variation, mutation, variation_percentage=variation_percentage)
+
+
+__all__: list[str] = [
+    "GAEmitter",
+    "MutationFn",
+    "VariationFn",
+    "gaussian_mutation",
+    "isoline_emitter",
+    "isoline_variation",
+    "polynomial_crossover",
+    "polynomial_emitter",
+    "polynomial_mutation",
+]

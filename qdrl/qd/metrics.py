@@ -1,0 +1,47 @@
+"""QD metrics of a repertoire: QD score, coverage, max and mean fitness, number of elites.
+
+The metrics of the QDax paper (Chalumeau, Lim et al.), computed alike for every
+algorithm from its repertoire or its passive archive.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+
+from qdrl.types import Array
+
+__all__ = ["qd_metrics"]
+
+
+def qd_metrics(repertoire: Any, qd_offset: float) -> dict[str, Array]:
+    """QD metrics of any repertoire whose `fitnesses` (C,) are -inf in empty cells; jittable.
+
+    Args:
+      repertoire: a cell repertoire, an unstructured repertoire or a passive archive
+        (only `fitnesses` is read; C is the number of cells, or the capacity).
+      qd_offset: subtracted from every stored fitness in the QD score. It is fixed per
+        task, chosen as a lower bound of the fitness so that every elite counts
+        positively and filling a new cell always raises the score.
+
+    Returns:
+      float32 `qd_score` = sum over filled cells of (fitness - qd_offset) (0 when
+      empty); `coverage` = filled / C in [0, 1]; `max_fitness` (-inf when empty);
+      `mean_fitness` over the filled cells (NaN when empty: there is no mean; plots
+      and logs skip it); int32 `num_elites`.
+    """
+    fitnesses = jnp.asarray(repertoire.fitnesses, jnp.float32)
+    filled = fitnesses > -jnp.inf
+    num_elites = jnp.sum(filled, dtype=jnp.int32)
+    stored = jnp.where(filled, fitnesses, 0.0)
+    total = jnp.sum(stored)
+    return {
+        "qd_score": jnp.sum(jnp.where(filled, fitnesses - qd_offset, 0.0)),
+        "coverage": num_elites.astype(jnp.float32) / fitnesses.shape[0],
+        "max_fitness": jnp.max(fitnesses),
+        "mean_fitness": jnp.where(
+            num_elites > 0, total / jnp.maximum(num_elites, 1).astype(jnp.float32), jnp.nan
+        ),
+        "num_elites": num_elites,
+    }

@@ -1,0 +1,52 @@
+"""QD tasks: scoring functions with their bounds, and a registry of them by name.
+
+`TASKS[name](**params)` builds a `Task`; `make_task(name, **params)` does the same
+with a helpful error for unknown names (experiment specs use it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from qdrl.tasks.arm import arm, noisy_arm
+from qdrl.tasks.base import Task
+from qdrl.tasks.deceptive import archimedean_spiral, deceptive_evolvability, ssf
+from qdrl.tasks.functions import rastrigin, rastrigin_proj, sphere, sphere_proj
+
+TASKS: dict[str, Callable[..., Task]] = {
+    "sphere": sphere,
+    "rastrigin": rastrigin,
+    "sphere_proj": sphere_proj,
+    "rastrigin_proj": rastrigin_proj,
+    "arm": arm,
+    "noisy_arm": noisy_arm,
+    "archimedean_spiral": archimedean_spiral,
+    "deceptive_evolvability": deceptive_evolvability,
+    "ssf": ssf,
+}
+
+
+def make_task(name: str, **params: Any) -> Task:
+    """The task registered as `name`, built with keyword `params`."""
+    try:
+        builder = TASKS[name]
+    except KeyError:
+        raise ValueError(f"unknown task {name!r}; known: {', '.join(sorted(TASKS))}") from None
+    return builder(**params)
+
+
+__all__ = [
+    "TASKS",
+    "Task",
+    "archimedean_spiral",
+    "arm",
+    "deceptive_evolvability",
+    "make_task",
+    "noisy_arm",
+    "rastrigin",
+    "rastrigin_proj",
+    "sphere",
+    "sphere_proj",
+    "ssf",
+]

@@ -1,0 +1,105 @@
+"""`Task`: a scoring function bundled with its search and descriptor bounds."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from qdrl.qd.base import Evaluation, ScoringFn
+from qdrl.types import Array, Descriptor, Fitness, PRNGKey
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """A QD benchmark: batched scoring function, bounds, and what the QD score needs.
+
+    `qd_offset` is subtracted from every stored fitness before summing the QD
+    score; each task sets it to (a bound below) its lowest fitness inside the
+    search bounds so that every elite counts non-negatively. `max_fitness`, when
+    known, normalises scores: `(f - qd_offset) / (max_fitness - qd_offset)`.
+    `init_fn`, when given, replaces the default initial population (uniform in
+    `[genotype_low, genotype_high]^genotype_size`), e.g. for QD-suite tasks that
+    all start from one point, or policy tasks whose genotypes are parameter trees.
+    `genotype_template` is one genotype (no batch axis) when genotypes are not flat
+    vectors; `genotype_size` then counts its scalars.
+    """
+
+    name: str
+    scoring_fn: ScoringFn
+    descriptor_low: tuple[float, ...]
+    descriptor_high: tuple[float, ...]
+    genotype_size: int
+    genotype_low: float
+    genotype_high: float
+    qd_offset: float
+    max_fitness: float | None = None
+    init_fn: Callable[[PRNGKey, int], Any] | None = None
+    genotype_template: Any = None
+
+    def __post_init__(self) -> None:
+        if len(self.descriptor_low) != len(self.descriptor_high):
+            raise ValueError(
+                f"{self.name}: descriptor_low has {len(self.descriptor_low)} entries, "
+                f"descriptor_high {len(self.descriptor_high)}"
+            )
+        if not self.genotype_low < self.genotype_high:
+            raise ValueError(
+                f"{self.name}: genotype_low ({self.genotype_low}) must be below "
+                f"genotype_high ({self.genotype_high})"
+            )
+
+    @property
+    def descriptor_size(self) -> int:
+        """Number of descriptor dimensions D."""
+        return len(self.descriptor_low)
+
+    def example_genotype(self) -> Any:
+        """One genotype without batch axis (zeros), e.g. to build an empty repertoire."""
+        if self.genotype_template is not None:
+            return jax.tree.map(jnp.zeros_like, self.genotype_template)
+        return jnp.zeros((self.genotype_size,), jnp.float32)
+
+    def init_genotypes(self, key: PRNGKey, n: int) -> Any:
+        """`n` initial genotypes: (n, genotype_size) float32, or a pytree with a leading n axis."""
+        if self.init_fn is not None:
+            return self.init_fn(key, n)
+        return jax.random.uniform(
+            key,
+            (n, self.genotype_size),
+            minval=self.genotype_low,
+            maxval=self.genotype_high,
+        )
+
+
+def batched_scoring_fn(
+    evaluate: Callable[[Array], tuple[Fitness, Descriptor]], genotype_size: int
+) -> ScoringFn:
+    """Turns a deterministic one-genotype `x -> (fitness (), descriptor (D,))` into a `ScoringFn`."""
+    batched = jax.vmap(evaluate)
+
+    def scoring_fn(genotypes: Array, key: PRNGKey) -> Evaluation:
+        del key  # deterministic
+        genotypes = check_genotypes(genotypes, genotype_size)
+        fitnesses, descriptors = batched(genotypes)
+        return Evaluation(
+            fitnesses=fitnesses.astype(jnp.float32),
+            descriptors=descriptors.astype(jnp.float32),
+            extras={},
+            env_steps=jnp.zeros((), jnp.int32),
+        )
+
+    return scoring_fn
+
+
+def check_genotypes(genotypes: Array, genotype_size: int) -> Array:
+    """`genotypes` as a floating (n, genotype_size) array; raises a ValueError on another shape."""
+    genotypes = jnp.asarray(genotypes)
+    if genotypes.ndim != 2 or genotypes.shape[1] != genotype_size:
+        raise ValueError(f"genotypes: expected shape (n, {genotype_size}), got {genotypes.shape}")
+    if not jnp.issubdtype(genotypes.dtype, jnp.floating):
+        genotypes = genotypes.astype(jnp.float32)
+    return genotypes

@@ -1,0 +1,115 @@
+"""QD tasks on jumanji environments: policy genotypes, fitness = return, descriptor from the states.
+
+Any discrete-action jumanji environment wrapped by `qdrl.envs.jumanji.JumanjiEnv`
+becomes a QD policy task with `jumanji_task`: genotypes are the parameters of a
+deterministic tanh MLP with one output per discrete action (the action taken is
+the argmax over the allowed actions), the fitness is the episode return, and the
+descriptor aggregates the env's state descriptor over the episode. `snake` is
+the ready-made one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+
+from qdrl.envs.jumanji import JumanjiEnv, snake_env
+from qdrl.tasks.base import Task
+from qdrl.tasks.policy import (
+    EpisodeDescriptor,
+    init_policies,
+    num_parameters,
+    policy_network,
+    policy_scoring_fn,
+)
+from qdrl.types import Params, PRNGKey
+
+
+def jumanji_task(
+    env: JumanjiEnv,
+    descriptor_low: Sequence[float],
+    descriptor_high: Sequence[float],
+    policy_hidden: Sequence[int] = (64, 64),
+    descriptor: EpisodeDescriptor = "mean",
+    qd_offset: float = 0.0,
+    max_fitness: float | None = None,
+    name: str | None = None,
+) -> Task:
+    """A QD task of MLP policies on a wrapped jumanji env: fitness = episode return.
+
+    Args:
+      env: the wrapped environment; its state descriptor gives the task's.
+      descriptor_low, descriptor_high: bounds of the episode descriptor.
+      policy_hidden: hidden layer sizes of the tanh policy.
+      descriptor: "mean" (state descriptor averaged over the episode) or "final".
+      qd_offset: a bound below every return (0 for non-negative rewards).
+      max_fitness: the best return, when known.
+      name: the task's name (default: the env's).
+    """
+    if len(descriptor_low) != env.descriptor_size:
+        raise ValueError(
+            f"{env.name}: the env's descriptor has {env.descriptor_size} dimensions, "
+            f"got {len(descriptor_low)} bounds"
+        )
+    network = policy_network(env.action_size, tuple(int(h) for h in policy_hidden))
+    # zeros of the right shapes: an actual init, unjitted, costs seconds on CPU
+    shapes = jax.eval_shape(
+        lambda key: init_policies(network, env.observation_size, key, 1), jax.random.PRNGKey(0)
+    )
+    template: Params = jax.tree.map(lambda s: jnp.zeros(s.shape[1:], s.dtype), shapes)
+
+    def init_fn(key: PRNGKey, n: int) -> Params:
+        return init_policies(network, env.observation_size, key, n)
+
+    return Task(
+        name=env.name if name is None else name,
+        scoring_fn=policy_scoring_fn(env, network, descriptor=descriptor),
+        descriptor_low=tuple(float(x) for x in descriptor_low),
+        descriptor_high=tuple(float(x) for x in descriptor_high),
+        genotype_size=num_parameters(template),
+        genotype_low=-math.inf,
+        genotype_high=math.inf,
+        qd_offset=qd_offset,
+        max_fitness=max_fitness,
+        init_fn=init_fn,
+        genotype_template=template,
+    )
+
+
+def snake(
+    episode_length: int = 100,
+    policy_hidden: tuple[int, ...] = (64, 64),
+    num_rows: int = 12,
+    num_cols: int = 12,
+    start_seed: int | None = 0,
+) -> Task:
+    """Snake (jumanji Snake-v1): fitness = fruits eaten, descriptor = mean head position.
+
+    The descriptor is the head's (row, col), scaled to [0, 1]^2 (row 0 at the top),
+    averaged over the episode: the region of the board where the snake spends its
+    time. Every episode starts from the same board (`start_seed`, see
+    `qdrl.envs.jumanji.JumanjiEnv`), so fitness and descriptor are deterministic
+    functions of the policy. Measured on 1024 random (64, 64) policies, 100 steps:
+    the mean head position fills 53 to 62 of the 8 x 8 cells (seeds 0, 1), while
+    pairs of action shares fill 8 to 12 (deterministic policies mostly settle into
+    back-and-forth moves whose shares look alike); with random starts instead
+    (`start_seed=None`) the mean head position mostly reflects the start cell (the
+    same policies moved by 0.32 on average between two evaluations). Random
+    policies rarely eat (2 to 3% eat one fruit), so early fitness is flat at 0.
+    Returns are >= 0, so `qd_offset` is 0. The policy sees the board and the action
+    mask (`qdrl.envs.jumanji.snake_observation`) and moves only where the mask
+    allows.
+    """
+    env = snake_env(episode_length, num_rows, num_cols, start_seed=start_seed)
+    return jumanji_task(
+        env,
+        descriptor_low=(0.0, 0.0),
+        descriptor_high=(1.0, 1.0),
+        policy_hidden=policy_hidden,
+        descriptor="mean",
+        qd_offset=0.0,
+        name="snake",
+    )

@@ -1,0 +1,86 @@
+"""Policy networks as genotypes: one jitted rollout evaluates a whole batch of policies.
+
+Genotypes are batched haiku parameter trees of a deterministic policy; policy i
+acts in environment i of a batch, through the one rollout loop of qdrl
+(`qdrl.rollout.run_episodes`). Fitness is the episode return (steps after the
+episode ended are masked), the descriptor is computed from the trajectory of
+state descriptors (its last value or its mean over the episode), and the
+transitions are handed back in `extras["transitions"]` (with `extras["mask"]`)
+for actor-critic emitters to store in a replay buffer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Literal
+
+import haiku as hk
+import jax
+import jax.numpy as jnp
+
+from qdrl import nets
+from qdrl.envs.base import Env
+from qdrl.qd.base import Evaluation, ScoringFn
+from qdrl.rollout import run_episodes
+from qdrl.types import Genotype, Params, PRNGKey
+
+EpisodeDescriptor = Literal["final", "mean"]
+
+
+def policy_network(action_size: int, hidden: Sequence[int] = (64, 64), act: str = "tanh") -> hk.Transformed:
+    """The QD-RL literature's policy: an MLP with a tanh output (64x64 tanh by default)."""
+    return nets.deterministic_policy(action_size, hidden, act)
+
+
+def init_policies(
+    network: hk.Transformed, observation_size: int, key: PRNGKey, n: int
+) -> Params:
+    """`n` independently initialised policies, stacked on a leading axis."""
+    obs = jnp.zeros((observation_size,), jnp.float32)
+    return jax.vmap(lambda k: network.init(k, obs))(jax.random.split(key, n))
+
+
+def num_parameters(params: Params) -> int:
+    """Scalars in one (unbatched) parameter tree."""
+    return int(sum(x.size for x in jax.tree.leaves(params)))
+
+
+def policy_scoring_fn(
+    env: Env,
+    network: hk.Transformed,
+    descriptor: EpisodeDescriptor = "mean",
+    num_steps: int | None = None,
+    descriptor_fn: Callable[[jax.Array], jax.Array] | None = None,
+) -> ScoringFn:
+    """A scoring function of batched policy parameters on `env`.
+
+    Args:
+      env: the environment; its state descriptor is aggregated per episode.
+      network: the policy (`apply(params, obs) -> action`).
+      descriptor: "final" (state descriptor after the episode's last step, e.g. the
+        torso x-y) or "mean" (averaged over the episode, e.g. feet-contact rates).
+      num_steps: episode length (default: the env's).
+      descriptor_fn: optional map of the aggregated descriptor (e.g. a clip).
+    """
+    if descriptor not in ("final", "mean"):
+        raise ValueError(f"descriptor: expected 'final' or 'mean', got {descriptor!r}")
+
+    def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
+        n = jax.tree.leaves(genotypes)[0].shape[0]
+
+        def policy(obs: jax.Array, _: PRNGKey) -> jax.Array:
+            return jax.vmap(network.apply)(genotypes, obs)
+
+        episodes = run_episodes(env, policy, key, n, num_steps)
+        desc = episodes.final_desc if descriptor == "final" else episodes.mean_desc
+        if descriptor_fn is not None:
+            desc = descriptor_fn(desc)
+        # A policy whose rollout blew up (NaN return) is rejected by the repertoire.
+        return Evaluation(
+            fitnesses=episodes.returns.astype(jnp.float32),
+            descriptors=desc.astype(jnp.float32),
+            extras={"transitions": episodes.transitions, "mask": episodes.mask},
+            env_steps=jnp.sum(episodes.lengths).astype(jnp.int32),
+        )
+
+    return scoring_fn

@@ -1,0 +1,50 @@
+"""`qdrl bench` prints the figures it promises; the examples run."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from qdrl.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_bench_map_elites_quick(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "me.json"
+    assert main(["bench", "map_elites", "--quick", "--config", "grid32", "--out", str(out)]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record == json.loads(out.read_text())
+    (result,) = record["results"]
+    assert result["cells"] == 1024 and result["iterations"] == 20 and result["dof"] == 100
+    for key in ("compile_s", "evals_per_s", "qd_score", "coverage"):
+        assert result[key] > 0, key
+    assert record["machine"]["jax"]
+
+
+def test_bench_rl_quick(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "rl", "--quick", "--config", "td3"]) == 0
+    (result,) = json.loads(capsys.readouterr().out)["results"]
+    assert result["algorithm"] == "td3"
+    for key in ("compile_s", "env_steps_per_s", "grad_steps_per_s"):
+        assert result[key] > 0, key
+
+
+def test_bench_unknown_name(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "nope"]) == 2
+    assert "unknown benchmark 'nope'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("script", ["ask_tell_numpy.py", "train_sac.py"])
+def test_example_runs(script: str) -> None:
+    res = subprocess.run([sys.executable, str(ROOT / "examples" / script)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    last = res.stdout.strip().splitlines()[-1]
+    if script == "ask_tell_numpy.py":
+        assert "iteration 100" in last and float(last.split("coverage")[1]) > 0.3
+    else:
+        assert float(last.split("eval return")[1]) > -10.0
