@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -20,7 +21,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from qdrl.experiment import run_spec
 
     try:
-        summary = run_spec(args.spec, args.set, args.out, args.resume, args.overwrite)
+        # Libraries print notices on stdout (mujoco-mjx: "Failed to import warp");
+        # stdout carries only the JSON summary.
+        with contextlib.redirect_stdout(sys.stderr):
+            summary = run_spec(args.spec, args.set, args.out, args.resume, args.overwrite)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
@@ -51,7 +55,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from qdrl.bench import run_bench
 
     try:
-        results = run_bench(args.name, quick=args.quick, out=args.out, seed=args.seed, config=args.config)
+        with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
+            results = run_bench(args.name, quick=args.quick, out=args.out, seed=args.seed, config=args.config)
     except ValueError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2

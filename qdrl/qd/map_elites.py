@@ -35,6 +35,11 @@ class QDState(NamedTuple):
     env_steps: Array  # int32 environment steps spent by evaluations
 
 
+def _batch_size(genotypes: Genotype, fitnesses: Array) -> int:
+    leaves = jax.tree.leaves(genotypes)
+    return int(leaves[0].shape[0]) if leaves else int(fitnesses.shape[0])
+
+
 def _check_evaluation(n: int, fitnesses: Array, descriptors: Array, descriptor_size: int) -> None:
     if fitnesses.shape != (n,):
         raise ValueError(f"fitnesses: expected shape ({n},), got {fitnesses.shape}")
@@ -85,7 +90,7 @@ class MapElites:
         self, genotypes: Genotype, evaluation: Evaluation, key: PRNGKey
     ) -> QDState:
         """Fill the repertoire with an evaluated initial population and start the emitter."""
-        n = int(evaluation.fitnesses.shape[0])
+        n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
         emitter_key, key = jax.random.split(key)
         repertoire, _ = self.empty_repertoire.add(
@@ -128,7 +133,7 @@ class MapElites:
         evaluation: Evaluation,
     ) -> tuple[QDState, dict[str, Array]]:
         """Offer evaluated offspring to the repertoire and update the emitter."""
-        n = int(evaluation.fitnesses.shape[0])
+        n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
         key, update_key = jax.random.split(state.key)
         repertoire, added = state.repertoire.add(
