@@ -6,14 +6,15 @@ from typing import Any
 
 from qdrl.envs.base import Env, EnvState, auto_reset, reset_batch, step_batch
 
-PURE_JAX_ENVS = ("point",)
+PURE_JAX_ENVS = ("point", "point_maze")
+JUMANJI_ENVS = ("snake",)
 
 
 def env_names() -> list[str]:
     """Every name `make` accepts: qdrl's pure-JAX environments, then brax's registry."""
     from qdrl.envs.brax import brax_env_names
 
-    return [*PURE_JAX_ENVS, *brax_env_names()]
+    return [*PURE_JAX_ENVS, *JUMANJI_ENVS, *brax_env_names()]
 
 
 def make(name: str, backend: str = "spring", episode_length: int = 1000, **kwargs: Any) -> Env:
@@ -22,6 +23,14 @@ def make(name: str, backend: str = "spring", episode_length: int = 1000, **kwarg
         from qdrl.envs.point import PointEnv
 
         return PointEnv(episode_length=episode_length, **kwargs)
+    if name == "point_maze":
+        from qdrl.envs.point_maze import PointMazeEnv
+
+        return PointMazeEnv(episode_length=episode_length, **kwargs)
+    if name == "snake":
+        from qdrl.envs.jumanji import snake_env
+
+        return snake_env(episode_length=episode_length, **kwargs)
     from qdrl.envs.brax import BraxEnv
 
     return BraxEnv(name, backend, episode_length, **kwargs)

@@ -100,7 +100,10 @@ class OffPolicyRun:
         self.task = env_cfg.name
         self.sections = {"env": env_cfg, "agent": agent_cfg, "train": train_cfg, "archive": archive_cfg}
         self.archive_cfg = archive_cfg
-        extra = {} if env_cfg.name == "point" else {"state_descriptor": env_cfg.state_descriptor}
+        from qdrl.envs import JUMANJI_ENVS, PURE_JAX_ENVS
+
+        native = env_cfg.name in PURE_JAX_ENVS or env_cfg.name in JUMANJI_ENVS
+        extra = {} if native else {"state_descriptor": env_cfg.state_descriptor}
         self.env = make(env_cfg.name, env_cfg.backend, env_cfg.episode_length, **extra)
         try:
             self.agent = make_agent(agent_cfg, self.env.observation_size, self.env.action_size)

@@ -11,8 +11,11 @@ from typing import Any
 
 from qdrl.tasks.arm import arm, noisy_arm
 from qdrl.tasks.base import Task
+from qdrl.tasks.brax_qd import BRAX_TASKS
 from qdrl.tasks.deceptive import archimedean_spiral, deceptive_evolvability, ssf
 from qdrl.tasks.functions import rastrigin, rastrigin_proj, sphere, sphere_proj
+from qdrl.tasks.jumanji_qd import snake
+from qdrl.tasks.point_maze import point_maze
 
 TASKS: dict[str, Callable[..., Task]] = {
     "sphere": sphere,
@@ -24,6 +27,9 @@ TASKS: dict[str, Callable[..., Task]] = {
     "archimedean_spiral": archimedean_spiral,
     "deceptive_evolvability": deceptive_evolvability,
     "ssf": ssf,
+    "point_maze": point_maze,
+    "snake": snake,
+    **BRAX_TASKS,
 }
 
 

@@ -156,7 +156,12 @@ def test_wrong_genotype_shape_is_reported() -> None:
 
 
 def test_registry_builds_every_task() -> None:
+    from qdrl.tasks.brax_qd import BRAX_TASKS
+
+    # Brax and jumanji policy tasks compile whole rollouts: their own test files cover them.
     for name, builder in TASKS.items():
+        if name in BRAX_TASKS or name in ("snake", "point_maze"):
+            continue
         task = builder()
         assert isinstance(task, Task)
         genotypes = task.init_genotypes(jax.random.PRNGKey(0), 3)
