@@ -193,6 +193,81 @@ def bench_map_elites(quick: bool, seed: int = 0, config: str | None = None) -> l
     return [time_map_elites(c, seed=seed, **kwargs) for c in containers]
 
 
+def time_task(
+    name: str,
+    *,
+    batches: tuple[int, ...] = (128, 1024),
+    episode_length: int = 100,
+    me_batch: int = 128,
+    me_iterations: int = 10,
+    num_centroids: int = 1024,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """A policy task's rollout throughput (the ceiling) and MAP-Elites' on the same task."""
+    from qdrl.qd.emitters.ga import isoline_emitter
+    from qdrl.qd.map_elites import MapElites
+    from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire
+    from qdrl.tasks import make_task
+
+    task = make_task(name, episode_length=episode_length)
+    key = jax.random.PRNGKey(seed)
+    record: dict[str, Any] = {"bench": f"task/{name}", "task": name, "episode_length": episode_length}
+    for batch in batches:
+        genotypes = task.init_genotypes(key, batch)
+        t0 = time.perf_counter()
+        score = jax.jit(task.scoring_fn).lower(genotypes, key).compile()
+        compile_s = time.perf_counter() - t0
+        jax.block_until_ready(score(genotypes, key))
+        times = []
+        for i in range(3):  # best of three calls: one call is short enough to be noisy
+            t0 = time.perf_counter()
+            jax.block_until_ready(score(genotypes, jax.random.fold_in(key, i + 1)))
+            times.append(time.perf_counter() - t0)
+        elapsed = min(times)
+        record[f"rollout_b{batch}_compile_s"] = round(compile_s, 2)
+        # Ceiling: every simulated step, the masked ones after an early termination included.
+        record[f"rollout_b{batch}_env_steps_per_s"] = round(batch * episode_length / elapsed, 1)
+    centroids = cvt_centroids(key, num_centroids, 20 * num_centroids, task.descriptor_low, task.descriptor_high)
+    repertoire = cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high)
+    me = MapElites(task.scoring_fn, isoline_emitter(me_batch, 0.005, 0.05), repertoire, task.qd_offset)
+    state = jax.jit(lambda k: me.init(task.init_genotypes(k, me_batch), k))(key)
+    t0 = time.perf_counter()
+    run = jax.jit(lambda s: me.run(s, me_iterations), donate_argnums=0).lower(state).compile()
+    record["map_elites_compile_s"] = round(time.perf_counter() - t0, 2)
+    state, _ = run(state)
+    jax.block_until_ready(state)
+    steps0 = int(state.env_steps)
+    t0 = time.perf_counter()
+    state, metrics = run(state)
+    jax.block_until_ready(state)
+    elapsed = time.perf_counter() - t0
+    simulated = me_batch * me_iterations * episode_length
+    record["map_elites_batch"] = me_batch
+    record["map_elites_env_steps_per_s"] = round(simulated / elapsed, 1)
+    record["map_elites_valid_env_steps_per_s"] = round((int(state.env_steps) - steps0) / elapsed, 1)
+    ceiling = record.get(f"rollout_b{me_batch}_env_steps_per_s")
+    if ceiling:
+        record["map_elites_fraction_of_ceiling"] = round(record["map_elites_env_steps_per_s"] / ceiling, 3)
+    record["qd_score"] = float(metrics["qd_score"][-1])
+    return record
+
+
+POLICY_TASKS = (
+    "ant_uni", "halfcheetah_uni", "walker2d_uni", "hopper_uni", "humanoid_uni",
+    "ant_omni", "humanoid_omni", "ant_maze", "ant_trap", "point_maze", "snake",
+)
+
+
+@_register("tasks")
+def bench_tasks(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
+    """Per policy task: rollout env steps/s at batch 128 and 1024, and MAP-Elites' (batch 128)."""
+    names = POLICY_TASKS if config is None else (config,)
+    if quick:
+        return [time_task(n, batches=(32,), me_batch=32, me_iterations=2, num_centroids=64,
+                          episode_length=20, seed=seed) for n in names]
+    return [time_task(n, seed=seed) for n in names]
+
+
 def run_bench(
     name: str,
     quick: bool = False,

@@ -84,13 +84,13 @@ def main(argv: list[str] | None = None) -> int:
     p_list.set_defaults(fn=_cmd_list)
 
     p_bench = sub.add_parser("bench", help="throughput benchmarks; prints JSON")
-    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark: rl, map_elites")
+    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark: rl, map_elites, tasks")
     p_bench.add_argument("--quick", action="store_true", help="a small, fast version")
     p_bench.add_argument("--out", default=None, help="also write the JSON to this file")
     p_bench.add_argument("--seed", type=int, default=0, help="random seed")
     p_bench.add_argument(
         "--config", default=None,
-        help="only one case: rl -> sac|td3; map_elites -> cvt1024|grid32|grid100",
+        help="only one case: rl -> sac|td3; map_elites -> cvt1024|grid32|grid100; tasks -> a task name",
     )
     p_bench.set_defaults(fn=_cmd_bench)
 

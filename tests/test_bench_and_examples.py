@@ -48,3 +48,12 @@ def test_example_runs(script: str) -> None:
         assert "iteration 100" in last and float(last.split("coverage")[1]) > 0.3
     else:
         assert float(last.split("eval return")[1]) > -10.0
+
+
+def test_bench_tasks_quick(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "tasks", "--quick", "--config", "point_maze"]) == 0
+    (result,) = json.loads(capsys.readouterr().out)["results"]
+    assert result["task"] == "point_maze"
+    for key in ("rollout_b32_env_steps_per_s", "map_elites_env_steps_per_s", "map_elites_compile_s"):
+        assert result[key] > 0, key
+    assert result["map_elites_fraction_of_ceiling"] > 0
