@@ -55,19 +55,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import jax
-import jax.numpy as jnp
-
 from qdrl.envs.brax import BraxEnv
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import (
-    EpisodeDescriptor,
-    init_policies,
-    num_parameters,
-    policy_network,
-    policy_scoring_fn,
-)
-from qdrl.types import Array, Params, PRNGKey
+from qdrl.tasks.policy import EpisodeDescriptor, policy_task
 
 # QDax `reward_offset` (qdax/tasks/brax/v2/__init__.py; anttrap and antmaze from
 # qdax/environments/__init__.py).
@@ -111,34 +101,8 @@ def brax_policy_task(
     The episode's state descriptor ("final" or "mean" over its steps) is clipped to
     the descriptor bounds; the fitness is the episode return.
     """
-    low = jnp.asarray(descriptor_low, jnp.float32)
-    high = jnp.asarray(descriptor_high, jnp.float32)
-    if low.shape != (env.descriptor_size,) or high.shape != (env.descriptor_size,):
-        raise ValueError(
-            f"{name}: descriptor bounds of shape {low.shape} and {high.shape} for "
-            f"a state descriptor of size {env.descriptor_size}"
-        )
-    network = policy_network(env.action_size, tuple(policy_hidden))
-    obs_size = env.observation_size
-    template = network.init(jax.random.PRNGKey(0), jnp.zeros((obs_size,), jnp.float32))
-
-    def clip(desc: Array) -> Array:
-        return jnp.clip(desc, low, high)
-
-    def init_fn(key: PRNGKey, n: int) -> Params:
-        return init_policies(network, obs_size, key, n)
-
-    return Task(
-        name=name,
-        scoring_fn=policy_scoring_fn(env, network, descriptor, descriptor_fn=clip),
-        descriptor_low=tuple(float(v) for v in descriptor_low),
-        descriptor_high=tuple(float(v) for v in descriptor_high),
-        genotype_size=num_parameters(template),
-        genotype_low=-math.inf,
-        genotype_high=math.inf,
-        qd_offset=qd_offset,
-        init_fn=init_fn,
-        genotype_template=template,
+    return policy_task(
+        name, env, descriptor, descriptor_low, descriptor_high, qd_offset, policy_hidden
     )
 
 

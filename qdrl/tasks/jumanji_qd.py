@@ -10,22 +10,11 @@ the ready-made one.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-
-import jax
-import jax.numpy as jnp
 
 from qdrl.envs.jumanji import JumanjiEnv, snake_env
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import (
-    EpisodeDescriptor,
-    init_policies,
-    num_parameters,
-    policy_network,
-    policy_scoring_fn,
-)
-from qdrl.types import Params, PRNGKey
+from qdrl.tasks.policy import EpisodeDescriptor, policy_task
 
 
 def jumanji_task(
@@ -49,33 +38,16 @@ def jumanji_task(
       max_fitness: the best return, when known.
       name: the task's name (default: the env's).
     """
-    if len(descriptor_low) != env.descriptor_size:
-        raise ValueError(
-            f"{env.name}: the env's descriptor has {env.descriptor_size} dimensions, "
-            f"got {len(descriptor_low)} bounds"
-        )
-    network = policy_network(env.action_size, tuple(int(h) for h in policy_hidden))
-    # zeros of the right shapes: an actual init, unjitted, costs seconds on CPU
-    shapes = jax.eval_shape(
-        lambda key: init_policies(network, env.observation_size, key, 1), jax.random.PRNGKey(0)
-    )
-    template: Params = jax.tree.map(lambda s: jnp.zeros(s.shape[1:], s.dtype), shapes)
-
-    def init_fn(key: PRNGKey, n: int) -> Params:
-        return init_policies(network, env.observation_size, key, n)
-
-    return Task(
-        name=env.name if name is None else name,
-        scoring_fn=policy_scoring_fn(env, network, descriptor=descriptor),
-        descriptor_low=tuple(float(x) for x in descriptor_low),
-        descriptor_high=tuple(float(x) for x in descriptor_high),
-        genotype_size=num_parameters(template),
-        genotype_low=-math.inf,
-        genotype_high=math.inf,
-        qd_offset=qd_offset,
+    return policy_task(
+        env.name if name is None else name,
+        env,
+        descriptor,
+        descriptor_low,
+        descriptor_high,
+        qd_offset,
+        policy_hidden,
         max_fitness=max_fitness,
-        init_fn=init_fn,
-        genotype_template=template,
+        clip_descriptors=False,
     )
 
 

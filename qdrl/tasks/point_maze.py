@@ -11,15 +11,10 @@ and the descriptor is where the point ends the episode, in [-1, 1]^2.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-
-import jax
-import jax.numpy as jnp
 
 from qdrl.envs.point_maze import PointMazeEnv
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import init_policies, num_parameters, policy_network, policy_scoring_fn
-from qdrl.types import Params, PRNGKey
+from qdrl.tasks.policy import policy_task
 
 
 def point_maze(episode_length: int = 100, policy_hidden: tuple[int, ...] = (64, 64)) -> Task:
@@ -29,26 +24,13 @@ def point_maze(episode_length: int = 100, policy_hidden: tuple[int, ...] = (64, 
     than the arena's diagonal from the goal, so every return is above it.
     """
     env = PointMazeEnv(episode_length=episode_length)
-    hidden: Sequence[int] = tuple(int(h) for h in policy_hidden)
-    network = policy_network(env.action_size, hidden)
-    # zeros of the right shapes: an actual init, unjitted, costs seconds on CPU
-    shapes = jax.eval_shape(
-        lambda key: init_policies(network, env.observation_size, key, 1), jax.random.PRNGKey(0)
-    )
-    template: Params = jax.tree.map(lambda s: jnp.zeros(s.shape[1:], s.dtype), shapes)
-
-    def init_fn(key: PRNGKey, n: int) -> Params:
-        return init_policies(network, env.observation_size, key, n)
-
-    return Task(
-        name="point_maze",
-        scoring_fn=policy_scoring_fn(env, network, descriptor="final"),
-        descriptor_low=(-1.0, -1.0),
-        descriptor_high=(1.0, 1.0),
-        genotype_size=num_parameters(template),
-        genotype_low=-math.inf,
-        genotype_high=math.inf,
+    return policy_task(
+        "point_maze",
+        env,
+        "final",
+        (-1.0, -1.0),
+        (1.0, 1.0),
         qd_offset=-2.0 * math.sqrt(2.0) * episode_length,
-        init_fn=init_fn,
-        genotype_template=template,
+        policy_hidden=policy_hidden,
+        clip_descriptors=False,
     )

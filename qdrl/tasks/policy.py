@@ -11,6 +11,7 @@ for actor-critic emitters to store in a replay buffer.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Literal
 
@@ -22,6 +23,7 @@ from qdrl import nets
 from qdrl.envs.base import Env
 from qdrl.qd.base import Evaluation, ScoringFn
 from qdrl.rollout import run_episodes
+from qdrl.tasks.base import Task
 from qdrl.types import Genotype, Params, PRNGKey
 
 EpisodeDescriptor = Literal["final", "mean"]
@@ -84,3 +86,56 @@ def policy_scoring_fn(
         )
 
     return scoring_fn
+
+
+def policy_task(
+    name: str,
+    env: Env,
+    descriptor: EpisodeDescriptor,
+    descriptor_low: Sequence[float],
+    descriptor_high: Sequence[float],
+    qd_offset: float,
+    policy_hidden: Sequence[int] = (64, 64),
+    max_fitness: float | None = None,
+    clip_descriptors: bool = True,
+) -> Task:
+    """A `Task` whose genotypes are MLP policies acting in `env` for one episode each.
+
+    Fitness is the episode return; the descriptor is the episode's state descriptor
+    ("final" or "mean" over its steps), clipped to the bounds if `clip_descriptors`.
+    Genotypes are unbounded parameter trees (`genotype_low/high` = -inf/inf).
+    """
+    low = jnp.asarray(descriptor_low, jnp.float32)
+    high = jnp.asarray(descriptor_high, jnp.float32)
+    if low.shape != (env.descriptor_size,) or high.shape != (env.descriptor_size,):
+        raise ValueError(
+            f"{name}: descriptor bounds of shape {low.shape} and {high.shape} for "
+            f"a state descriptor of size {env.descriptor_size}"
+        )
+    network = policy_network(env.action_size, tuple(int(h) for h in policy_hidden))
+    obs_size = env.observation_size
+    # Zeros of the right shapes: an actual un-jitted init costs seconds on a CPU.
+    shapes = jax.eval_shape(lambda k: init_policies(network, obs_size, k, 1), jax.random.PRNGKey(0))
+    template: Params = jax.tree.map(lambda x: jnp.zeros(x.shape[1:], x.dtype), shapes)
+
+    def init_fn(key: PRNGKey, n: int) -> Params:
+        return init_policies(network, obs_size, key, n)
+
+    def clip(desc: jax.Array) -> jax.Array:
+        return jnp.clip(desc, low, high)
+
+    return Task(
+        name=name,
+        scoring_fn=policy_scoring_fn(
+            env, network, descriptor, descriptor_fn=clip if clip_descriptors else None
+        ),
+        descriptor_low=tuple(float(v) for v in descriptor_low),
+        descriptor_high=tuple(float(v) for v in descriptor_high),
+        genotype_size=num_parameters(template),
+        genotype_low=-math.inf,
+        genotype_high=math.inf,
+        qd_offset=qd_offset,
+        max_fitness=max_fitness,
+        init_fn=init_fn,
+        genotype_template=template,
+    )

@@ -189,5 +189,5 @@ def test_generic_env_with_action_shares() -> None:
 
     task = jumanji_task(env, (0.0,) * 4, (1.0,) * 4, policy_hidden=(8,), name="2048")
     assert (task.name, task.genotype_size) == ("2048", 20 * 8 + 8 + 8 * 4 + 4)
-    with pytest.raises(ValueError, match="descriptor has 4 dimensions"):
+    with pytest.raises(ValueError, match="for a state descriptor of size 4"):
         jumanji_task(env, (0.0,), (1.0,))
