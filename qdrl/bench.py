@@ -252,6 +252,67 @@ def time_task(
     return record
 
 
+def time_policy_map_elites(
+    name: str,
+    *,
+    episode_length: int = 100,
+    batch_size: int = 128,
+    iterations: int = 50,
+    num_centroids: int = 1024,
+    cvt_samples: int = 50_000,
+    iso_sigma: float = 0.005,
+    line_sigma: float = 0.05,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """MAP-Elites on a policy task: `iterations` iterations as one scan compiled ahead of time."""
+    from qdrl.qd.emitters.ga import isoline_emitter
+    from qdrl.qd.map_elites import MapElites
+    from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire
+    from qdrl.tasks import make_task
+
+    task = make_task(name, episode_length=episode_length)
+    init_key, cvt_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)
+    centroids = cvt_centroids(cvt_key, num_centroids, cvt_samples, task.descriptor_low, task.descriptor_high)
+    repertoire = cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high)
+    me = MapElites(task.scoring_fn, isoline_emitter(batch_size, iso_sigma, line_sigma), repertoire, task.qd_offset)
+    state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, batch_size), k2))(init_key, run_key)
+    jax.block_until_ready(state)
+    t0 = time.perf_counter()
+    run = jax.jit(lambda s: me.run(s, iterations)).lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    state, metrics = run(state)
+    jax.block_until_ready(state)
+    run_s = time.perf_counter() - t0
+    return {
+        "bench": f"map_elites/{name}",
+        "library": "qdrl",
+        "task": name,
+        "seed": seed,
+        "episode_length": episode_length,
+        "batch": batch_size,
+        "iterations": iterations,
+        "cells": num_centroids,
+        "evaluations": batch_size * (iterations + 1),
+        "compile_s": round(compile_s, 2),
+        "run_s": round(run_s, 3),
+        "env_steps_per_s": round(batch_size * iterations * episode_length / run_s, 1),
+        "qd_score": float(metrics["qd_score"][-1]),
+        "coverage": float(metrics["coverage"][-1]),
+        "max_fitness": float(metrics["max_fitness"][-1]),
+    }
+
+
+@_register("policy_map_elites")
+def bench_policy_map_elites(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
+    """MAP-Elites on a policy task (default halfcheetah_uni): ep 100, batch 128, CVT 1024."""
+    name = config or "halfcheetah_uni"
+    if quick:
+        return [time_policy_map_elites(name, episode_length=10, batch_size=16, iterations=2,
+                                       num_centroids=32, cvt_samples=2_000, seed=seed)]
+    return [time_policy_map_elites(name, seed=seed)]
+
+
 POLICY_TASKS = (
     "ant_uni", "halfcheetah_uni", "walker2d_uni", "hopper_uni", "humanoid_uni",
     "ant_omni", "humanoid_omni", "ant_maze", "ant_trap", "point_maze", "snake",

@@ -57,3 +57,10 @@ def test_bench_tasks_quick(capsys: pytest.CaptureFixture[str]) -> None:
     for key in ("rollout_b32_env_steps_per_s", "map_elites_env_steps_per_s", "map_elites_compile_s"):
         assert result[key] > 0, key
     assert result["map_elites_fraction_of_ceiling"] > 0
+
+
+def test_bench_policy_map_elites_quick(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "policy_map_elites", "--quick", "--config", "point_maze"]) == 0
+    (result,) = json.loads(capsys.readouterr().out)["results"]
+    assert result["task"] == "point_maze" and result["evaluations"] == 16 * 3
+    assert result["env_steps_per_s"] > 0 and 0 < result["coverage"] <= 1
