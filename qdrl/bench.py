@@ -204,9 +204,6 @@ def time_task(
     seed: int = 0,
 ) -> dict[str, Any]:
     """A policy task's rollout throughput (the ceiling) and MAP-Elites' on the same task."""
-    from qdrl.qd.emitters.ga import isoline_emitter
-    from qdrl.qd.map_elites import MapElites
-    from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire
     from qdrl.tasks import make_task
 
     task = make_task(name, episode_length=episode_length)
@@ -227,28 +224,17 @@ def time_task(
         record[f"rollout_b{batch}_compile_s"] = round(compile_s, 2)
         # Ceiling: every simulated step, the masked ones after an early termination included.
         record[f"rollout_b{batch}_env_steps_per_s"] = round(batch * episode_length / elapsed, 1)
-    centroids = cvt_centroids(key, num_centroids, 20 * num_centroids, task.descriptor_low, task.descriptor_high)
-    repertoire = cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high)
-    me = MapElites(task.scoring_fn, isoline_emitter(me_batch, 0.005, 0.05), repertoire, task.qd_offset)
-    state = jax.jit(lambda k: me.init(task.init_genotypes(k, me_batch), k))(key)
-    t0 = time.perf_counter()
-    run = jax.jit(lambda s: me.run(s, me_iterations), donate_argnums=0).lower(state).compile()
-    record["map_elites_compile_s"] = round(time.perf_counter() - t0, 2)
-    state, _ = run(state)
-    jax.block_until_ready(state)
-    steps0 = int(state.env_steps)
-    t0 = time.perf_counter()
-    state, metrics = run(state)
-    jax.block_until_ready(state)
-    elapsed = time.perf_counter() - t0
-    simulated = me_batch * me_iterations * episode_length
+    me = time_policy_map_elites(
+        name, episode_length=episode_length, batch_size=me_batch, iterations=me_iterations,
+        num_centroids=num_centroids, cvt_samples=20 * num_centroids, seed=seed,
+    )
+    record["map_elites_compile_s"] = me["compile_s"]
     record["map_elites_batch"] = me_batch
-    record["map_elites_env_steps_per_s"] = round(simulated / elapsed, 1)
-    record["map_elites_valid_env_steps_per_s"] = round((int(state.env_steps) - steps0) / elapsed, 1)
+    record["map_elites_env_steps_per_s"] = me["env_steps_per_s"]
     ceiling = record.get(f"rollout_b{me_batch}_env_steps_per_s")
     if ceiling:
-        record["map_elites_fraction_of_ceiling"] = round(record["map_elites_env_steps_per_s"] / ceiling, 3)
-    record["qd_score"] = float(metrics["qd_score"][-1])
+        record["map_elites_fraction_of_ceiling"] = round(me["env_steps_per_s"] / ceiling, 3)
+    record["qd_score"] = me["qd_score"]
     return record
 
 

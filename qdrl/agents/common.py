@@ -36,3 +36,22 @@ def check_size(name: str, value: object) -> None:
     """Raise ValueError unless `value` is a positive int (an observation or action size)."""
     if not (isinstance(value, int) and not isinstance(value, bool) and value > 0):
         raise ValueError(f"{name}: expected a positive int, got {value!r}")
+
+
+def check_network(hidden: object, activation: object) -> None:
+    """Raise `ValueError("agent.hidden: ...")` / `("agent.activation: ...")` on a bad network shape."""
+    from qdrl import nets
+
+    require(
+        isinstance(hidden, tuple)
+        and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in hidden),
+        "hidden",
+        "a tuple of positive ints",
+        hidden,
+    )
+    require(
+        activation in nets.ACTIVATIONS,
+        "activation",
+        f"one of {sorted(nets.ACTIVATIONS)}",
+        activation,
+    )

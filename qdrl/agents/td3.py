@@ -26,7 +26,7 @@ import rlax
 
 from qdrl import nets
 from qdrl.agents.base import Agent
-from qdrl.agents.common import adam_step, check_size, is_real, require
+from qdrl.agents.common import adam_step, check_network, check_size, is_real, require
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
 
 # Names of the PBT-tunable scalars held in `TD3State.hparams`.
@@ -101,19 +101,7 @@ class TD3Config:
             "an int >= 1",
             k,
         )
-        require(
-            isinstance(self.hidden, tuple)
-            and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in self.hidden),
-            "hidden",
-            "a tuple of positive ints",
-            self.hidden,
-        )
-        require(
-            self.activation in nets.ACTIVATIONS,
-            "activation",
-            f"one of {sorted(nets.ACTIVATIONS)}",
-            self.activation,
-        )
+        check_network(self.hidden, self.activation)
 
     def hparams(self) -> dict[str, float]:
         """The PBT-tunable scalars, as stored (as float32 arrays) in `TD3State.hparams`."""
