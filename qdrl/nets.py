@@ -34,22 +34,34 @@ def activation(name: str) -> Callable[[Array], Array]:
     return ACTIVATIONS[name]
 
 
-def _mlp(hidden: Sequence[int], out: int, act: str, name: str) -> hk.nets.MLP:
+def _mlp(
+    hidden: Sequence[int], out: int, act: str, name: str, fan: str = "fan_avg"
+) -> hk.nets.MLP:
     return hk.nets.MLP(
         [*hidden, out],
         activation=activation(act),
-        w_init=hk.initializers.VarianceScaling(1.0, "fan_avg", "uniform"),
+        w_init=hk.initializers.VarianceScaling(1.0, fan, "uniform"),
         name=name,
     )
 
 
 def deterministic_policy(
-    action_size: int, hidden: Sequence[int] = (256, 256), act: str = "relu"
+    action_size: int,
+    hidden: Sequence[int] = (256, 256),
+    act: str = "relu",
+    init: str = "glorot_uniform",
 ) -> hk.Transformed:
-    """obs -> action in [-1, 1]^action_size through a final tanh (TD3, QD-RL genotypes)."""
+    """obs -> action in [-1, 1]^action_size through a final tanh (TD3, QD-RL genotypes).
+
+    `init`: "glorot_uniform" (variance 2 / (fan_in + fan_out)) or "lecun_uniform"
+    (variance 1 / fan_in, what QDax's QD-RL policies use).
+    """
+    if init not in ("glorot_uniform", "lecun_uniform"):
+        raise ValueError(f"init: expected 'glorot_uniform' or 'lecun_uniform', got {init!r}")
+    fan = "fan_avg" if init == "glorot_uniform" else "fan_in"
 
     def forward(obs: Array) -> Array:
-        return jnp.tanh(_mlp(hidden, action_size, act, "policy")(obs))
+        return jnp.tanh(_mlp(hidden, action_size, act, "policy", fan)(obs))
 
     return hk.without_apply_rng(hk.transform(forward))
 

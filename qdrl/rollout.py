@@ -73,15 +73,26 @@ class Episodes(NamedTuple):
 
 
 def run_episodes(
-    env: Env, policy: PolicyFn, key: PRNGKey, num_envs: int, num_steps: int | None = None
+    env: Env,
+    policy: PolicyFn,
+    key: PRNGKey,
+    num_envs: int,
+    num_steps: int | None = None,
+    start_key: PRNGKey | None = None,
 ) -> Episodes:
     """Roll out one episode per environment from fresh resets, masking steps after the end.
 
-    Episodes last at most `num_steps` (default: the env's episode length).
+    Episodes last at most `num_steps` (default: the env's episode length). With
+    `start_key`, every environment starts from the one initial state that key
+    resets to (QDax's deterministic evaluation of policies); otherwise each starts
+    from its own random initial state.
     """
     num_steps = env.episode_length if num_steps is None else num_steps
     reset_key, run_key = jax.random.split(key)
-    state = reset_batch(env, reset_key, num_envs)
+    if start_key is None:
+        state = reset_batch(env, reset_key, num_envs)
+    else:
+        state = jax.vmap(env.reset)(jnp.broadcast_to(start_key, (num_envs, *start_key.shape)))
     _, tr = unroll(env, state, policy, run_key, num_steps, reset=False)
     done = jnp.maximum(tr.terminated, tr.truncated)
     # A step is valid if no earlier step ended the episode.

@@ -30,8 +30,8 @@ EpisodeDescriptor = Literal["final", "mean"]
 
 
 def policy_network(action_size: int, hidden: Sequence[int] = (64, 64), act: str = "tanh") -> hk.Transformed:
-    """The QD-RL literature's policy: an MLP with a tanh output (64x64 tanh by default)."""
-    return nets.deterministic_policy(action_size, hidden, act)
+    """The QD-RL literature's policy: a 64x64 tanh MLP, tanh output, lecun-uniform init (QDax)."""
+    return nets.deterministic_policy(action_size, hidden, act, init="lecun_uniform")
 
 
 def init_policies(
@@ -53,6 +53,7 @@ def policy_scoring_fn(
     descriptor: EpisodeDescriptor = "mean",
     num_steps: int | None = None,
     descriptor_fn: Callable[[jax.Array], jax.Array] | None = None,
+    fixed_start: bool = True,
 ) -> ScoringFn:
     """A scoring function of batched policy parameters on `env`.
 
@@ -63,6 +64,10 @@ def policy_scoring_fn(
         torso x-y) or "mean" (averaged over the episode, e.g. feet-contact rates).
       num_steps: episode length (default: the env's).
       descriptor_fn: optional map of the aggregated descriptor (e.g. a clip).
+      fixed_start: every policy starts from the same initial state (QDax's
+        deterministic evaluation, the QD-RL benchmarks' convention), so a policy's
+        fitness and descriptor do not depend on the evaluation key; False gives
+        each episode its own random initial state.
     """
     if descriptor not in ("final", "mean"):
         raise ValueError(f"descriptor: expected 'final' or 'mean', got {descriptor!r}")
@@ -73,7 +78,8 @@ def policy_scoring_fn(
         def policy(obs: jax.Array, _: PRNGKey) -> jax.Array:
             return jax.vmap(network.apply)(genotypes, obs)
 
-        episodes = run_episodes(env, policy, key, n, num_steps)
+        start = jax.random.PRNGKey(0) if fixed_start else None
+        episodes = run_episodes(env, policy, key, n, num_steps, start_key=start)
         desc = episodes.final_desc if descriptor == "final" else episodes.mean_desc
         if descriptor_fn is not None:
             desc = descriptor_fn(desc)
