@@ -33,6 +33,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
+    with contextlib.redirect_stdout(sys.stderr):  # mujoco-mjx prints import notices
+        import brax.envs  # noqa: F401
     from qdrl.envs import PURE_JAX_ENVS
     from qdrl.envs.brax import BACKENDS, brax_env_names
     from qdrl.experiment import RUNS, _load_builtin_runs
@@ -46,6 +48,9 @@ def _cmd_list(args: argparse.Namespace) -> int:
     for name in sorted(RUNS):
         print(f"  {name}")
     print("tasks:")
+    from qdrl.tasks import TASKS
+
+    print(f"  QD tasks (the [task] section of QD specs): {', '.join(sorted(TASKS))}")
     print(f"  pure-JAX environments: {', '.join(PURE_JAX_ENVS)}")
     print(f"  brax environments ({', '.join(BACKENDS)} backends): {', '.join(brax_env_names())}")
     return 0

@@ -151,3 +151,4 @@ def test_list_shows_specs_algorithms_and_tasks(capsys: pytest.CaptureFixture[str
     assert main(["list"]) == 0
     out = capsys.readouterr().out
     assert "agents/default.toml" in out and "sac" in out and "td3" in out and "halfcheetah" in out
+    assert "map_elites" in out and "halfcheetah_uni" in out and "arm" in out
