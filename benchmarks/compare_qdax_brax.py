@@ -29,12 +29,16 @@ def main() -> None:
     p.add_argument("--qdax-python", required=True)
     p.add_argument("--task", default="halfcheetah_uni")
     p.add_argument("--seeds", type=int, default=2)
+    p.add_argument("--first-seed", type=int, default=0)
+    p.add_argument("--append", action="store_true", help="keep the runs already in --out")
     p.add_argument("--out", default=str(HERE / "results" / "map_elites_halfcheetah_uni_vs_qdax.json"))
     args = p.parse_args()
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
     env["JAX_PLATFORMS"] = "cpu"
     runs: list[dict[str, Any]] = []
-    for seed in range(args.seeds):
+    if args.append and Path(args.out).exists():
+        runs = json.loads(Path(args.out).read_text())["runs"]
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         for side in (["qdrl", "qdax"] if seed % 2 == 0 else ["qdax", "qdrl"]):
             if side == "qdrl":
                 cmd = [sys.executable, "-m", "qdrl.cli", "bench", "policy_map_elites",
@@ -51,6 +55,8 @@ def main() -> None:
         rs = [r for r in runs if r["side"] == side]
         summary[side] = {k: round(statistics.mean(r[k] for r in rs), 3)
                          for k in ("env_steps_per_s", "compile_s", "qd_score", "coverage", "evaluations")}
+        summary[side]["qd_score_std"] = round(statistics.pstdev(r["qd_score"] for r in rs), 1)
+        summary[side]["seeds"] = len(rs)
     summary["speed_ratio"] = round(summary["qdrl"]["env_steps_per_s"] / summary["qdax"]["env_steps_per_s"], 2)
     summary["qd_score_ratio"] = round(summary["qdrl"]["qd_score"] / summary["qdax"]["qd_score"], 4)
     from qdrl.bench import machine

@@ -10,8 +10,7 @@ CVT archive of 1024 cells, `--iterations` iterations as ONE `lax.scan` compiled
 ahead of time (compile and run timed apart). env steps/s = batch x iterations x
 episode length / run time. QD score = sum over cells of (fitness + reward
 offset x episode length), QDax's own offset (the same as qdrl's `qd_offset`).
-One difference stays: QDax evaluates every policy from one fixed initial state
-(`deterministic=True`); qdrl resets each episode with a fresh random key.
+Both sides evaluate every policy from one fixed initial state.
 """
 
 from __future__ import annotations
@@ -34,6 +33,8 @@ def main() -> None:
     p.add_argument("--cells", type=int, default=1024)
     p.add_argument("--cvt-samples", type=int, default=50_000)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--activation", choices=("tanh", "relu"), default="tanh",
+                   help="hidden activation (QDax's default task uses relu)")
     args = p.parse_args()
 
     from qdax.core.containers.mapelites_repertoire import compute_cvt_centroids
@@ -41,13 +42,29 @@ def main() -> None:
     from qdax.core.emitters.standard_emitters import MixingEmitter
     from qdax.core.map_elites import MAPElites
     from qdax.tasks.brax import v2 as environments
-    from qdax.tasks.brax.v2.env_creators import create_default_brax_task_components
+    from qdax.core.neuroevolution.networks.networks import MLP
+    from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
     from qdax.utils.metrics import default_qd_metrics
 
     key = jax.random.key(args.seed)
     key, env_key, init_key, cvt_key, me_key = jax.random.split(key, 5)
-    env, policy_network, scoring_fn = create_default_brax_task_components(
-        args.task, env_key, episode_length=args.episode_length
+    # QDax's `create_default_brax_task_components` builds a ReLU MLP; qdrl's policy
+    # tasks use the literature's tanh MLP. Build QDax's task with a tanh MLP so both
+    # sides search the same policy space (same layers, lecun-uniform init, tanh output).
+    env = environments.create(args.task, episode_length=args.episode_length)
+    policy_network = MLP(
+        layer_sizes=(64, 64, env.action_size),
+        activation=jnp.tanh if args.activation == "tanh" else jax.nn.relu,
+        kernel_init=jax.nn.initializers.lecun_uniform(),
+        final_activation=jnp.tanh,
+    )
+    scoring_fn = create_brax_scoring_fn(
+        env,
+        policy_network,
+        environments.descriptor_extractor[args.task],
+        env_key,
+        episode_length=args.episode_length,
+        deterministic=True,
     )
     obs = jnp.zeros((args.batch, env.observation_size))
     params = jax.vmap(policy_network.init)(jax.random.split(init_key, args.batch), obs)
@@ -82,6 +99,7 @@ def main() -> None:
         "task": args.task,
         "seed": args.seed,
         "episode_length": args.episode_length,
+        "activation": args.activation,
         "batch": args.batch,
         "iterations": args.iterations,
         "cells": args.cells,
