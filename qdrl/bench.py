@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 
 BenchFn = Callable[..., list[dict[str, Any]]]  # (quick, seed, config) -> records
 BENCHES: dict[str, BenchFn] = {}
@@ -55,15 +56,23 @@ def time_trainer(
     iters_per_chunk: int = 250,
     repeats: int = 2,
     seed: int = 0,
+    build: Callable[[Any, Any], Any] | None = None,
+    population: int = 1,
 ) -> dict[str, Any]:
-    """Compile and time the off-policy loop of `algorithm` on `env_name`."""
+    """Compile and time the off-policy loop of `algorithm` on `env_name`.
+
+    `population > 1` times PBT's step instead: that many independent members
+    (each its own agent, buffer and environments) trained by one vmapped chunk;
+    env steps then count every member's.
+
+    `build(env, train_config) -> Trainer` replaces the default trainer of the
+    `AGENTS` entry `algorithm` (e.g. a skill-discovery agent; `algorithm` then only labels).
+    """
     from qdrl import envs
     from qdrl.agents import AGENTS
     from qdrl.off_policy import TrainConfig, make_trainer
 
     env = envs.make(env_name, backend=backend, episode_length=episode_length)
-    config_cls, make_agent = AGENTS[algorithm]
-    agent = make_agent(config_cls(hidden=hidden), env.observation_size, env.action_size)
     chunk_steps = iters_per_chunk * num_envs
     cfg = TrainConfig(
         total_env_steps=chunk_steps * (repeats + 1),
@@ -74,19 +83,29 @@ def time_trainer(
         grad_steps_per_iter=grad_steps_per_iter,
         eval_every=chunk_steps,
     )
-    trainer = make_trainer(env, agent, cfg)
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(seed))  # jit: distinct buffers for donation
+    if build is None:
+        config_cls, make_agent = AGENTS[algorithm]
+        agent = make_agent(config_cls(hidden=hidden), env.observation_size, env.action_size)
+        trainer = make_trainer(env, agent, cfg)
+    else:
+        trainer = build(env, cfg)
+    init, run_chunk = trainer.init, trainer.run_chunk
+    if population > 1:
+        init = lambda k: jax.vmap(trainer.init)(jax.random.split(k, population))  # noqa: E731
+        run_chunk = jax.vmap(trainer.run_chunk)
+    state = jax.jit(init)(jax.random.PRNGKey(seed))  # jit: distinct buffers for donation
     t0 = time.perf_counter()
-    chunk = jax.jit(trainer.run_chunk, donate_argnums=0).lower(state).compile()
+    chunk = jax.jit(run_chunk, donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
     state, _ = chunk(state)  # warm-up chunk (fills the buffer past learning_starts)
     jax.block_until_ready(state)
-    steps0, grads0 = int(state.env_steps), int(state.grad_steps)
+    steps0, grads0 = int(jnp.sum(state.env_steps)), int(jnp.sum(state.grad_steps))
     t0 = time.perf_counter()
     for _ in range(repeats):
         state, _ = chunk(state)
     jax.block_until_ready(state)
     elapsed = time.perf_counter() - t0
+    steps, grads = int(jnp.sum(state.env_steps)) - steps0, int(jnp.sum(state.grad_steps)) - grads0
     return {
         "bench": f"{algorithm}/{env_name}",
         "algorithm": algorithm,
@@ -96,12 +115,40 @@ def time_trainer(
         "grad_steps_per_iter": grad_steps_per_iter,
         "batch_size": batch_size,
         "hidden": list(hidden),
+        "population": population,
         "compile_s": round(compile_s, 2),
-        "env_steps": int(state.env_steps) - steps0,
+        "env_steps": steps,
         "wall_s": round(elapsed, 3),
-        "env_steps_per_s": round((int(state.env_steps) - steps0) / elapsed, 1),
-        "grad_steps_per_s": round((int(state.grad_steps) - grads0) / elapsed, 1),
+        "env_steps_per_s": round(steps / elapsed, 1),
+        "grad_steps_per_s": round(grads / elapsed, 1),
     }
+
+
+@_register("pbt")
+def bench_pbt(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
+    """PBT's cost: populations of N SAC (or TD3) agents against N single-agent runs.
+
+    halfcheetah (spring), per member 8 envs x 8 updates of batch 128, 64x64
+    networks (a CPU-sized member). `cost_ratio` = wall time of the population /
+    (N x wall time of one agent); below 1 means vmapping the population is cheaper
+    than N separate runs.
+    """
+    algorithm = config or "sac"
+    sizes: tuple[int, ...] = (1, 4, 8, 16)
+    env = "halfcheetah"
+    kw: dict[str, Any] = {
+        "num_envs": 8, "grad_steps_per_iter": 8, "batch_size": 128, "hidden": (64, 64),
+        "iters_per_chunk": 50, "repeats": 2,
+    }
+    if quick:
+        sizes, env = (1, 2), "point"
+        kw = {"num_envs": 4, "grad_steps_per_iter": 2, "batch_size": 32, "hidden": (16, 16),
+              "iters_per_chunk": 10, "repeats": 1, "episode_length": 50}
+    records = [time_trainer(algorithm, env, population=n, seed=seed, **kw) for n in sizes]
+    one = records[0]["wall_s"] / records[0]["env_steps"]  # seconds per env step of one agent
+    for r in records:
+        r["cost_ratio"] = round(r["wall_s"] / (r["env_steps"] * one), 3)
+    return records
 
 
 @_register("rl")

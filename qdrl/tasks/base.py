@@ -26,6 +26,9 @@ class Task:
     all start from one point, or policy tasks whose genotypes are parameter trees.
     `genotype_template` is one genotype (no batch axis) when genotypes are not flat
     vectors; `genotype_size` then counts its scalars.
+    Policy tasks also give their environment (`env`) and `policy_scoring(network)`:
+    the task's scoring function for genotypes of another policy (anything with
+    `apply(genotype, obs) -> action`), e.g. whole RL agents in ME-PBT.
     """
 
     name: str
@@ -39,6 +42,8 @@ class Task:
     max_fitness: float | None = None
     init_fn: Callable[[PRNGKey, int], Any] | None = None
     genotype_template: Any = None
+    env: Any = None
+    policy_scoring: Callable[[Any], ScoringFn] | None = None
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import haiku as hk
 import jax
@@ -130,11 +130,12 @@ def policy_task(
     def clip(desc: jax.Array) -> jax.Array:
         return jnp.clip(desc, low, high)
 
+    def scoring_for(policy: Any) -> ScoringFn:
+        return policy_scoring_fn(env, policy, descriptor, descriptor_fn=clip if clip_descriptors else None)
+
     return Task(
         name=name,
-        scoring_fn=policy_scoring_fn(
-            env, network, descriptor, descriptor_fn=clip if clip_descriptors else None
-        ),
+        scoring_fn=scoring_for(network),
         descriptor_low=tuple(float(v) for v in descriptor_low),
         descriptor_high=tuple(float(v) for v in descriptor_high),
         genotype_size=num_parameters(template),
@@ -144,4 +145,6 @@ def policy_task(
         max_fitness=max_fitness,
         init_fn=init_fn,
         genotype_template=template,
+        env=env,
+        policy_scoring=scoring_for,
     )

@@ -1,0 +1,277 @@
+"""Population-based training runs (`sac_pbt`, `td3_pbt`) and ME-PBT (`me_pbt_sac`, `me_pbt_td3`).
+
+The spec is a SAC/TD3 spec (`[env]`, `[agent]`, `[train]`, `[archive]`) plus a
+`[pbt]` section (`qdrl.pbt.PBTConfig`). `[agent]` gives the settings PBT does
+not tune; each member starts from hyperparameters drawn from the search space.
+`[train]` is per member: `total_env_steps` is what each member trains for.
+With `pbt.num_replace = 0` nothing is ever exploited: a population trained with
+fixed random hyperparameters, the baseline PBT is compared against.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from qdrl import pbt
+from qdrl.config import ConfigError, build
+from qdrl.experiment import ExperimentConfig, register
+from qdrl.off_policy import TrainState
+from qdrl.qd.metrics import qd_metrics
+from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
+from qdrl.runners.qd import QDRun
+from qdrl.runners.rl import OffPolicyRun
+
+
+class PBTState(NamedTuple):
+    """The population (a `TrainState` with a leading member axis) and its run-level state."""
+
+    population: TrainState
+    archive: CellRepertoire
+    key: jax.Array
+    chunks: jax.Array  # int32, log intervals done
+    exploits: jax.Array  # int32, members replaced so far
+
+
+class PBTRun(OffPolicyRun):
+    """A population of SAC or TD3 agents trained in one vmapped step, with exploit/explore."""
+
+    progress_keys: tuple[str, ...] = ("eval_return", "eval_return_median", "coverage")
+
+    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> None:
+        super().__init__(spec, dataclasses.replace(exp, algorithm=agent_name))
+        self.algorithm = exp.algorithm
+        self.agent_name = agent_name
+        self.pbt_cfg = build(pbt.PBTConfig, spec.get("pbt", {}), "pbt")
+        self.sections["pbt"] = self.pbt_cfg
+        example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
+        try:
+            self.space = pbt.search_space(agent_name, self.pbt_cfg, example.hparams)
+        except ValueError as e:
+            raise ConfigError(str(e)) from e
+        self._pbt_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x9B7)
+
+    @property
+    def buffer_bytes_per_member(self) -> int:
+        shapes = jax.eval_shape(self.trainer.init, jax.random.PRNGKey(0))
+        return pbt.buffer_bytes(shapes.buffer)
+
+    def init(self, key: jax.Array) -> PBTState:  # type: ignore[override]
+        cfg = self.archive_cfg
+        n = self.pbt_cfg.population_size
+        archive = passive_archive("grid", grid_shape=cfg.grid_shape, low=cfg.low, high=cfg.high)
+
+        def make(k: jax.Array) -> PBTState:
+            member_key, hp_key, run_key = jax.random.split(k, 3)
+            population = jax.vmap(self.trainer.init)(jax.random.split(member_key, n))
+            values = pbt.sample(hp_key, self.space, n)
+            population = pbt.set_hparams(population, self.space, values)
+            zero = jnp.zeros((), jnp.int32)
+            return PBTState(population, archive, run_key, zero, zero)
+
+        return jax.jit(make)(key)
+
+    def chunk(self, state: PBTState) -> tuple[PBTState, dict[str, Any]]:  # type: ignore[override]
+        """Train every member one log interval, evaluate each, then (on schedule) exploit/explore."""
+        cfg = self.pbt_cfg
+        n = cfg.population_size
+        population, metrics = jax.vmap(self.trainer.run_chunk)(state.population)
+        key, eval_key, pbt_key = jax.random.split(state.key, 3)
+        ev = jax.vmap(self.trainer.evaluate)(population.agent, jax.random.split(eval_key, n))
+        desc = ev["eval_final_desc"] if self.archive_cfg.descriptor == "final" else ev["eval_mean_desc"]
+        archive = observe(
+            state.archive, desc.reshape((-1, desc.shape[-1])), ev["eval_returns"].reshape((-1,))
+        )
+        fitness = ev["eval_return"]  # (n,)
+        best = jnp.argmax(jnp.where(jnp.isnan(fitness), -jnp.inf, fitness))
+        hparams = pbt.get_hparams(population, self.space)  # before explore: what earned `fitness`
+        chunks = state.chunks + 1
+        due = (chunks % cfg.exploit_every == 0) & (cfg.num_replace > 0)
+
+        def step(p: TrainState) -> TrainState:
+            return pbt.exploit_and_explore(pbt_key, p, fitness, self.space, cfg)[0]
+
+        population = jax.lax.cond(due, step, lambda p: p, population)
+        out: dict[str, Any] = {k: jnp.nanmean(v) for k, v in metrics.items()}
+        out["eval_returns_members"] = fitness
+        out["eval_return"] = fitness[best]
+        out["eval_return_median"] = jnp.median(fitness)
+        out["eval_return_mean"] = jnp.mean(fitness)
+        out["eval_return_std"] = ev["eval_return_std"][best]
+        out["eval_length"] = ev["eval_length"][best]
+        out["hparams_best"] = hparams[best]
+        out["best_member"] = best
+        out.update(qd_metrics(archive, self.archive_cfg.qd_offset))
+        exploits = state.exploits + jnp.where(due, cfg.num_replace, 0)
+        out["exploits"] = exploits
+        return PBTState(population, archive, key, chunks, exploits), out
+
+    def log_row(self, state: PBTState, chunk_metrics: Any, chunk: int) -> dict[str, float]:  # type: ignore[override]
+        m = jax.device_get(chunk_metrics)
+        member_steps = float(np.asarray(state.population.env_steps)[0])
+        row = {
+            "env_steps": member_steps * self.pbt_cfg.population_size,
+            "member_env_steps": member_steps,
+            "grad_steps": float(np.asarray(state.population.grad_steps).sum()),
+        }
+        for i, r in enumerate(np.asarray(m.pop("eval_returns_members"))):
+            row[f"eval_return_m{i}"] = float(r)
+        for name, v in zip(self.space.names, np.asarray(m.pop("hparams_best")), strict=True):
+            row[f"best_{name}"] = float(v)
+        row.update({k: float(v) for k, v in m.items()})
+        return row
+
+    def finish(self, state: PBTState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:  # type: ignore[override]
+        from qdrl import plotting
+
+        cfg = self.archive_cfg
+        plotting.plot_repertoire(
+            jax.device_get(state.archive), out_dir / "plots" / "archive.png", cfg.low, cfg.high,
+            title=f"{self.algorithm} on {self.task}: passive archive ({cfg.descriptor} descriptor)",
+        )
+        members = {
+            f"member {i}": [
+                {"member_env_steps": r["member_env_steps"], "eval_return": r[f"eval_return_m{i}"]}
+                for r in rows
+            ]
+            for i in range(self.pbt_cfg.population_size)
+        }
+        if rows:
+            plotting.plot_comparison(
+                members, "eval_return", "member_env_steps", out_dir / "plots" / "population.png",
+                title=f"{self.algorithm} on {self.task}: each member's evaluation return",
+            )
+        final = pbt.get_hparams(jax.device_get(state.population), self.space)
+        return {
+            "population_size": self.pbt_cfg.population_size,
+            "buffer_bytes_per_member": self.buffer_bytes_per_member,
+            "final_hparams": {n: np.asarray(final[:, i]).tolist() for i, n in enumerate(self.space.names)},
+            "grad_steps": int(np.asarray(state.population.grad_steps).sum()),
+        }
+
+
+@register("sac_pbt")
+def _sac_pbt(spec: Mapping[str, Any], exp: ExperimentConfig) -> PBTRun:
+    return PBTRun(spec, exp, "sac")
+
+
+@register("td3_pbt")
+def _td3_pbt(spec: Mapping[str, Any], exp: ExperimentConfig) -> PBTRun:
+    return PBTRun(spec, exp, "td3")
+
+
+class MEPBTRun(QDRun):
+    """ME-PBT (Pierrot & Flajolet 2023): MAP-Elites whose emitter is a PBT population of agents.
+
+    Sections: `[task]` (a policy task: its environment trains the agents and its
+    scoring evaluates them), `[repertoire]`, `[qd]`, `[agent]` (the SAC/TD3
+    settings PBT does not tune) and `[me_pbt]` (`MEPBTConfig`). Every iteration
+    evaluates `me_pbt.ga_batch_size + me_pbt.population_size` agents; each agent
+    of the population also trains `me_pbt.training_steps` env steps per iteration
+    (logged as `train_env_steps`; `total_env_steps` adds the evaluations').
+    """
+
+    progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness", "population_best")
+
+    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> None:
+        from qdrl.agents import AGENTS
+        from qdrl.off_policy import make_trainer
+        from qdrl.qd.emitters.me_pbt import MEPBTConfig, MEPBTEmitter
+
+        if "emitter" in spec:
+            raise ConfigError("emitter: ME-PBT takes no [emitter] section; its GA settings are in [me_pbt]")
+        super().__init__({k: v for k, v in spec.items() if k not in ("agent", "me_pbt")}, exp, "cvt")
+        del self.sections["emitter"]
+        config_cls, make_agent = AGENTS[agent_name]
+        agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
+        self.me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
+        self.sections.update({"agent": agent_cfg, "me_pbt": self.me_cfg})
+        task = self._task
+        if task.env is None or task.policy_scoring is None:
+            raise ConfigError(
+                f"task.name: ME-PBT needs a policy task with an environment (e.g. ant_uni, "
+                f"halfcheetah_uni, point_maze), got {task.name!r}"
+            )
+        if self.qd_cfg.init_batch_size < self.me_cfg.population_size:
+            raise ConfigError(
+                f"qd.init_batch_size: expected at least me_pbt.population_size="
+                f"{self.me_cfg.population_size}, got {self.qd_cfg.init_batch_size}"
+            )
+        try:
+            self.agent = make_agent(agent_cfg, task.env.observation_size, task.env.action_size)
+            example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
+            space = pbt.search_space(agent_name, self.me_cfg.pbt_config(), example.hparams)
+            trainer = make_trainer(task.env, self.agent, self.me_cfg.train_config())
+        except ValueError as e:
+            msg = str(e)
+            raise ConfigError(msg if msg.startswith(("me_pbt.", "pbt.", "train.")) else f"me_pbt: {msg}") from e
+        self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg)
+
+    def _build(self, key: jax.Array) -> Any:
+        from qdrl.qd.emitters.me_pbt import agent_policy_network, to_genotype
+        from qdrl.qd.map_elites import MapElites
+        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
+        from qdrl.qd.repertoires.cvt import cvt_centroids
+
+        task, rc = self._task, self.rep_cfg
+        example = to_genotype(jax.eval_shape(self.agent.init, jax.random.PRNGKey(0)))
+        example = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), example)
+        if rc.kind == "grid":
+            repertoire = grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
+        else:
+            centroids = cvt_centroids(
+                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
+                num_iters=rc.kmeans_iters,
+            )
+            repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+        assert task.policy_scoring is not None
+        scoring = task.policy_scoring(agent_policy_network(self.agent))
+        return MapElites(scoring, self.emitter, repertoire, qd_offset=task.qd_offset)
+
+    def init(self, key: jax.Array) -> Any:
+        cvt_key, init_key, run_key = jax.random.split(key, 3)
+        self.map_elites = self._build(cvt_key)
+        me = self.map_elites
+
+        def start(k1: jax.Array, k2: jax.Array) -> Any:
+            return me.init(self.emitter.init_genotypes(k1, self.qd_cfg.init_batch_size), k2)
+
+        return jax.jit(start)(init_key, run_key)
+
+    def log_row(self, state: Any, chunk_metrics: Any, chunk: int) -> dict[str, float]:
+        row = super().log_row(state, chunk_metrics, chunk)
+        train_steps = float(np.asarray(state.emitter_state.population.env_steps).sum())
+        row["train_env_steps"] = train_steps
+        row["eval_env_steps"] = row["env_steps"]
+        row["env_steps"] = row["eval_env_steps"] + train_steps
+        return row
+
+    def finish(self, state: Any, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
+        from qdrl import plotting
+
+        rep = jax.device_get(state.repertoire)
+        np.savez(
+            out_dir / "repertoire.npz", fitnesses=np.asarray(rep.fitnesses),
+            descriptors=np.asarray(rep.descriptors),
+        )
+        plotting.plot_repertoire(
+            rep, out_dir / "plots" / "repertoire.png", self._task.descriptor_low,
+            self._task.descriptor_high, title=f"{self.algorithm} on {self.task}",
+        )
+        return {"qd_offset": self._task.qd_offset, "population_size": self.me_cfg.population_size}
+
+
+@register("me_pbt_sac")
+def _me_pbt_sac(spec: Mapping[str, Any], exp: ExperimentConfig) -> MEPBTRun:
+    return MEPBTRun(spec, exp, "sac")
+
+
+@register("me_pbt_td3")
+def _me_pbt_td3(spec: Mapping[str, Any], exp: ExperimentConfig) -> MEPBTRun:
+    return MEPBTRun(spec, exp, "td3")
