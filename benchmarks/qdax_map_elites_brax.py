@@ -41,8 +41,8 @@ def main() -> None:
     from qdax.core.emitters.mutation_operators import isoline_variation
     from qdax.core.emitters.standard_emitters import MixingEmitter
     from qdax.core.map_elites import MAPElites
-    from qdax.tasks.brax import v2 as environments
     from qdax.core.neuroevolution.networks.networks import MLP
+    from qdax.tasks.brax import v2 as environments
     from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
     from qdax.utils.metrics import default_qd_metrics
 

@@ -212,12 +212,20 @@ def td3_actor_step(
     return policy_params, policy_opt_state, loss
 
 
-def make_td3(config: TD3Config, obs_size: int, action_size: int) -> Agent:
-    """A TD3 agent (Fujimoto et al. 2018) for flat observations and actions in [-1, 1]."""
+def make_td3(
+    config: TD3Config, obs_size: int, action_size: int, networks: TD3Networks | None = None
+) -> Agent:
+    """A TD3 agent (Fujimoto et al. 2018) for flat observations and actions in [-1, 1].
+
+    `networks` defaults to `make_td3_networks(config, action_size)`; the QD-RL
+    emitters pass their own, so that the actor has the genotypes' architecture
+    (e.g. a 64x64 tanh policy) while the critic keeps TD3's.
+    """
     config.check()
     check_size("obs_size", obs_size)
     check_size("action_size", action_size)
-    networks = make_td3_networks(config, action_size)
+    if networks is None:
+        networks = make_td3_networks(config, action_size)
     losses = make_td3_losses(networks)
     adam = optax.scale_by_adam()
 

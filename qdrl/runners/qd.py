@@ -15,8 +15,10 @@ import numpy as np
 
 from qdrl.config import ConfigError, build, coerce
 from qdrl.experiment import ExperimentConfig, register
+from qdrl.qd.emitters.pg import PGConfig
 
 if TYPE_CHECKING:
+    from qdrl.qd.base import Emitter
     from qdrl.qd.map_elites import MapElites, QDState
 
 
@@ -167,18 +169,23 @@ class QDRun:
                 num_iters=rc.kmeans_iters,
             )
             repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
-        if ec.kind == "isoline":
-            emitter = isoline_emitter(
-                ec.batch_size, ec.iso_sigma, ec.line_sigma, lo, hi,
-                variation_percentage=ec.variation_percentage,
-            )
-        else:
-            emitter = polynomial_emitter(
-                ec.batch_size, ec.eta, ec.proportion_to_mutate, task.genotype_low, task.genotype_high,
+        def make_ga(batch_size: int) -> Emitter:
+            if ec.kind == "isoline":
+                return isoline_emitter(
+                    batch_size, ec.iso_sigma, ec.line_sigma, lo, hi,
+                    variation_percentage=ec.variation_percentage,
+                )
+            return polynomial_emitter(
+                batch_size, ec.eta, ec.proportion_to_mutate, task.genotype_low, task.genotype_high,
                 variation_percentage=ec.variation_percentage,
                 proportion_var_to_change=ec.crossover_proportion,
             )
-        return MapElites(task.scoring_fn, emitter, repertoire, qd_offset=task.qd_offset)
+
+        return MapElites(task.scoring_fn, self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
+
+    def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
+        """The run's emitter; `make_ga(n)` is the GA emitter of the `[emitter]` section with n offspring."""
+        return make_ga(self.emitter_cfg.batch_size)
 
     def init(self, key: jax.Array) -> QDState:
         cvt_key, init_key, run_key = jax.random.split(key, 3)
@@ -235,3 +242,212 @@ def _map_elites(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDRun:
 @register("cvt_map_elites")
 def _cvt_map_elites(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDRun:
     return QDRun(spec, exp, default_kind="cvt")
+
+
+@dataclasses.dataclass(frozen=True)
+class PGSection(PGConfig):
+    """The `[pg]` section of PGA-ME: the Q-PG emitter's TD3 and its share of the batch."""
+
+    # Share of `emitter.batch_size` made by the GA; the rest by Q-PG (QDax's PGA-ME: 0.5).
+    proportion_mutation_ga: float = 0.5
+
+    def check(self, section: str = "pg") -> None:
+        super().check(section)
+        p = self.proportion_mutation_ga
+        if not 0.0 < p < 1.0:
+            raise ValueError(f"{section}.proportion_mutation_ga: expected a number in (0, 1), got {p!r}")
+
+
+def policy_spec(task: Any, task_table: Mapping[str, Any]) -> tuple[Any, int, int]:
+    """The policy network of a policy task's genotypes, its observation and action sizes.
+
+    Sizes come from an abstract evaluation (no compilation) of one genotype, which
+    also checks that the task hands transitions back (`qdrl.tasks.policy`).
+    """
+    import jax.numpy as jnp
+
+    from qdrl.tasks.policy import policy_network
+
+    example = task.example_genotype()
+    batch = jax.tree.map(lambda x: jnp.zeros((1, *x.shape), x.dtype), example)
+    evaluation = jax.eval_shape(task.scoring_fn, batch, jax.random.PRNGKey(0))
+    if "transitions" not in evaluation.extras:
+        raise ConfigError(
+            f"task.name: expected a policy task whose evaluations hand back transitions "
+            f"(e.g. halfcheetah_uni, point_maze), got {task.name!r}"
+        )
+    transitions = evaluation.extras["transitions"]
+    obs_size, action_size = int(transitions.obs.shape[-1]), int(transitions.action.shape[-1])
+    hidden = tuple(int(h) for h in task_table.get("policy_hidden", (64, 64)))
+    network = policy_network(action_size, hidden)
+    shapes = jax.eval_shape(network.init, jax.random.PRNGKey(0), jnp.zeros((obs_size,)))
+    structure: Any = jax.tree.structure(shapes)
+    same = structure == jax.tree.structure(example) and all(
+        a.shape == b.shape for a, b in zip(jax.tree.leaves(shapes), jax.tree.leaves(example), strict=True)
+    )
+    if not same:
+        raise ConfigError(
+            f"task.policy_hidden: the genotypes of {task.name!r} are not a "
+            f"policy_network({action_size}, {list(hidden)})"
+        )
+    return network, obs_size, action_size
+
+
+class PGAMERun(QDRun):
+    """PGA-ME (Nilsson & Cully 2021): the GA of `[emitter]` and a Q-PG emitter (`[pg]`)."""
+
+    progress_keys = (*QDRun.progress_keys, "critic_steps")
+    pg_section: type[PGConfig] = PGSection
+
+    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
+        super().__init__(spec, exp, default_kind="cvt")
+        self.pg_cfg = build(self.pg_section, spec.get("pg", {}), "pg")
+        self.sections["pg"] = self.pg_cfg
+        self._policy = policy_spec(self._task, self.sections["task"])
+        steps = self.sections["task"].get("episode_length")
+        for name, batch in (("emitter.batch_size", self.emitter_cfg.batch_size),
+                            ("qd.init_batch_size", self.qd_cfg.init_batch_size)):
+            if steps is not None and int(steps) * batch > self.pg_cfg.replay_buffer_size:
+                raise ConfigError(
+                    f"pg.replay_buffer_size: expected at least {name} x task.episode_length = "
+                    f"{int(steps) * batch}, got {self.pg_cfg.replay_buffer_size}"
+                )
+
+    def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
+        from qdrl.qd.emitters.pg import pga_me_emitter
+
+        network, obs_size, action_size = self._policy
+        pg = dataclasses.asdict(self.pg_cfg)
+        share = pg.pop("proportion_mutation_ga")
+        return pga_me_emitter(
+            self.emitter_cfg.batch_size, network, obs_size, action_size, PGConfig(**pg),
+            proportion_mutation_ga=share, make_ga=make_ga,
+        )
+
+    def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
+        row = super().log_row(state, chunk_metrics, chunk)
+        pg_state = state.emitter_state[1]  # the Q-PG emitter's
+        row["critic_steps"] = float(pg_state.td3.steps)
+        row["buffer_size"] = float(pg_state.buffer.size)
+        return row
+
+
+@dataclasses.dataclass(frozen=True)
+class DPGSection:
+    """The `[dpg]` section of QD-PG: batch shares and the novelty archive of the D-PG emitter."""
+
+    # Shares of emitter.batch_size for the GA, Q-PG and D-PG emitters.
+    shares: tuple[float, ...] = (0.34, 0.33, 0.33)
+    # A descriptor enters the archive if farther than this from all stored (QDax: 0.1).
+    acceptance_threshold: float = 0.1
+    archive_max_size: int = 10_000
+    # k of the k-nearest-neighbour novelty reward (QDax: 5).
+    num_neighbours: int = 5
+    # Visited descriptors offered to the archive per update.
+    candidates_per_update: int = 256
+    novelty_scale: float = 1.0
+
+    def check(self) -> None:
+        if len(self.shares) != 3 or any(v <= 0 for v in self.shares):
+            raise ValueError(f"dpg.shares: expected 3 positive numbers (GA, Q-PG, D-PG), got {list(self.shares)}")
+        for name in ("archive_max_size", "num_neighbours", "candidates_per_update"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"dpg.{name}: expected a positive integer, got {getattr(self, name)}")
+        for name in ("acceptance_threshold", "novelty_scale"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"dpg.{name}: expected a number > 0, got {getattr(self, name)}")
+
+
+class QDPGRun(PGAMERun):
+    """QD-PG (Pierrot et al. 2022): GA (`[emitter]`), Q-PG (`[pg]`) and D-PG (`[pg]`, `[dpg]`)."""
+
+    pg_section = PGConfig
+
+    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
+        super().__init__(spec, exp)
+        self.dpg_cfg = build(DPGSection, spec.get("dpg", {}), "dpg")
+        self.sections["dpg"] = self.dpg_cfg
+
+    def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
+        from qdrl.qd.emitters.novelty import NoveltyReward, qdpg_emitter
+
+        network, obs_size, action_size = self._policy
+        d = self.dpg_cfg
+        reward = NoveltyReward(
+            self._task.descriptor_size, d.acceptance_threshold, d.archive_max_size,
+            d.num_neighbours, d.candidates_per_update, d.novelty_scale,
+        )
+        shares = (d.shares[0], d.shares[1], d.shares[2])
+        return qdpg_emitter(
+            self.emitter_cfg.batch_size, network, obs_size, action_size,
+            self._task.descriptor_size, self.pg_cfg, shares, reward, make_ga,
+        )
+
+    def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
+        row = super().log_row(state, chunk_metrics, chunk)
+        row["novelty_archive_size"] = float(state.emitter_state[2].relabel.size)
+        return row
+
+
+@register("pga_me")
+def _pga_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> PGAMERun:
+    return PGAMERun(spec, exp)
+
+
+@register("qdpg")
+def _qdpg(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDPGRun:
+    return QDPGRun(spec, exp)
+
+
+@dataclasses.dataclass(frozen=True)
+class ESSection:
+    """The `[es]` section of ME-ES (Colas et al. 2020): the OpenAI-ES emitter around one elite."""
+
+    population_size: int = 64  # perturbations per generation (mirrored pairs; even)
+    sigma: float = 0.02  # std of the parameter perturbations
+    learning_rate: float = 0.01  # Adam step size on the search centre
+    l2_coefficient: float = 0.005  # weight decay of the centre
+    num_optimizer_steps: int = 10  # generations before restarting from an elite
+    objective: Literal["fitness", "novelty", "explore_exploit"] = "explore_exploit"
+    novelty_neighbours: int = 10  # k of the k-nearest-neighbour novelty
+    archive_size: int = 10_000  # slots of the novelty archive of descriptors
+
+    def check(self) -> None:
+        if self.population_size < 2 or self.population_size % 2:
+            raise ValueError(f"es.population_size: expected an even integer >= 2, got {self.population_size}")
+        for name in ("sigma", "learning_rate"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"es.{name}: expected a number > 0, got {getattr(self, name)}")
+        if self.l2_coefficient < 0:
+            raise ValueError(f"es.l2_coefficient: expected a number >= 0, got {self.l2_coefficient}")
+        for name in ("num_optimizer_steps", "novelty_neighbours", "archive_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"es.{name}: expected a positive integer, got {getattr(self, name)}")
+
+
+class MEESRun(QDRun):
+    """ME-ES (Colas et al. 2020): MAP-Elites whose only emitter is OpenAI-ES around one elite (`[es]`)."""
+
+    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
+        if "emitter" in spec:
+            raise ConfigError("emitter: ME-ES has no GA emitter; its settings are in [es]")
+        super().__init__(spec, exp, default_kind="cvt")
+        del self.sections["emitter"]
+        self.es_cfg = build(ESSection, spec.get("es", {}), "es")
+        self.sections["es"] = self.es_cfg
+
+    def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
+        from qdrl.qd.emitters.es import ESEmitter
+
+        del make_ga
+        c = self.es_cfg
+        return ESEmitter(
+            c.population_size, self._task.example_genotype(), c.sigma, c.learning_rate,
+            c.l2_coefficient, c.num_optimizer_steps, c.objective, self._task.descriptor_size,
+            c.novelty_neighbours, c.archive_size,
+        )
+
+
+@register("me_es")
+def _me_es(spec: Mapping[str, Any], exp: ExperimentConfig) -> MEESRun:
+    return MEESRun(spec, exp)

@@ -1,0 +1,123 @@
+"""PGA-ME against MAP-Elites at equal evaluations, on halfcheetah_uni and walker2d_uni (CPU budget).
+
+    python benchmarks/pga_me_vs_map_elites.py --tasks halfcheetah_uni walker2d_uni --seeds 1
+    python benchmarks/pga_me_vs_map_elites.py --tasks halfcheetah_uni walker2d_uni --first-seed 1
+
+(the second call adds seed 1 to the results of the first).
+
+Runs `agents/pga_me_<task>_cpu.toml` and `agents/map_elites_<task>_cpu.toml` through
+the experiment driver (`qdrl run`): the same task (spring, 100-step episodes,
+policies 64x64 tanh), the same CVT archive (256 cells) and the same number of
+offspring per iteration (64) and iterations, so both spend the same evaluations
+and environment steps. PGA-ME spends extra compute on TD3 (50 critic steps per
+iteration, 20 actor steps per PG offspring, batches of 64): the wall-time curve
+shows what that costs. `--iterations` overrides both specs' `qd.num_iterations`.
+
+Writes `benchmarks/results/pga_me_vs_map_elites.json` (every run's metric rows,
+final figures and the per-task means) and, per task, `docs/pga_me_vs_map_elites_<task>.png`
+(QD score against evaluations and against wall time, one line per run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+ALGORITHMS = ("pga_me", "map_elites")
+
+
+def run_one(algorithm: str, task: str, seed: int, iterations: int | None, log_every: int | None) -> dict[str, Any]:
+    """One `qdrl run` of the CPU spec; its rows and summary."""
+    from qdrl.experiment import run_spec
+
+    spec = ROOT / "agents" / f"{algorithm}_{task}_cpu.toml"
+    overrides = [f"experiment.seed={seed}", "log.progress=false", "log.plots=false"]
+    if iterations is not None:
+        overrides.append(f"qd.num_iterations={iterations}")
+    if log_every is not None:
+        overrides.append(f"qd.log_every={log_every}")
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = run_spec(spec, overrides, Path(tmp) / "out")
+        lines = (Path(tmp) / "out" / "metrics.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [dict(zip(header, (float(v) for v in line.split(",")), strict=True)) for line in lines[1:]]
+    return {
+        "algorithm": algorithm,
+        "task": task,
+        "seed": seed,
+        "spec": str(spec.relative_to(ROOT)),
+        "overrides": overrides,
+        "summary": {k: summary[k] for k in (
+            "evaluations", "env_steps", "qd_score", "coverage", "max_fitness", "compile_s", "run_s",
+            "wall_s", "env_steps_per_s",
+        )},
+        "rows": [{k: r[k] for k in ("evaluations", "env_steps", "wall_s", "qd_score", "coverage", "max_fitness")} for r in rows],
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--tasks", nargs="+", default=["halfcheetah_uni", "walker2d_uni"])
+    p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--first-seed", type=int, default=0)
+    p.add_argument("--iterations", type=int, default=None)
+    p.add_argument("--log-every", type=int, default=None)
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "pga_me_vs_map_elites.json"))
+    p.add_argument("--plots", default=str(ROOT / "docs"))
+    args = p.parse_args()
+
+    from qdrl import plotting
+    from qdrl.bench import machine
+
+    out = Path(args.out)
+    previous = json.loads(out.read_text()) if out.exists() else {}
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    # runs of other tasks or seeds stay, so seeds can be added one invocation at a time
+    runs: list[dict[str, Any]] = [
+        r for r in previous.get("runs", []) if r["task"] not in args.tasks or r["seed"] not in seeds
+    ]
+    for task in args.tasks:
+        for seed in seeds:
+            # alternate which algorithm goes first, so machine load drifts hit both alike
+            order = ALGORITHMS if seed % 2 == 0 else ALGORITHMS[::-1]
+            for algorithm in order:
+                rec = run_one(algorithm, task, seed, args.iterations, args.log_every)
+                runs.append(rec)
+                print(json.dumps({"algorithm": algorithm, "task": task, "seed": seed, **rec["summary"]}),
+                      file=sys.stderr)
+    summary: dict[str, Any] = {}
+    for task in sorted({r["task"] for r in runs}):
+        per_task: dict[str, Any] = {}
+        for algorithm in ALGORITHMS:
+            rs = [r for r in runs if r["task"] == task and r["algorithm"] == algorithm]
+            if rs:
+                per_task[algorithm] = {
+                    k: round(statistics.mean(r["summary"][k] for r in rs), 3)
+                    for k in ("evaluations", "qd_score", "coverage", "max_fitness", "run_s", "compile_s")
+                } | {"seeds": len(rs)}
+        if len(per_task) == 2:
+            per_task["qd_score_ratio"] = round(
+                per_task["pga_me"]["qd_score"] / per_task["map_elites"]["qd_score"], 3
+            )
+        summary[task] = per_task
+        for x_key, stem in (("evaluations", "evaluations"), ("wall_s", "wall_time")):
+            curves = {
+                f"{r['algorithm']} seed {r['seed']}": r["rows"] for r in runs if r["task"] == task
+            }
+            plotting.plot_comparison(
+                curves, "qd_score", x_key, Path(args.plots) / f"pga_me_vs_map_elites_{task}_{stem}.png",
+                title=f"PGA-ME vs MAP-Elites on {task} (CPU specs)",
+            )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"machine": machine(), "summary": summary, "runs": runs}, indent=2) + "\n")
+    print(json.dumps(summary, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,374 @@
+"""Actor-critic emitters of the QD-RL algorithms: Q-PG (PGA-ME) and D-PG (QD-PG).
+
+A policy-gradient variation is literally TD3's actor update applied to an elite:
+the emitter holds a TD3 agent (`qdrl.agents.td3`: twin critic, target networks,
+greedy actor) and one replay buffer (`qdrl.buffers`). `emit` samples parents
+from the repertoire and applies `num_pg_training_steps` calls of
+`td3_actor_step` to each (fresh Adam moments per offspring, one sampled batch
+per step, against the shared critic), and emits the greedy actor as the last
+offspring. `update` stores the valid transitions of the evaluated episodes in
+the buffer and trains critic, greedy actor and targets with TD3's own `update`,
+`num_critic_training_steps` times.
+
+Nilsson & Cully 2021, "Policy Gradient Assisted MAP-Elites" (GECCO), Alg. 1-2;
+QDax's `QualityPGEmitter` / `PGAMEEmitter` (defaults of `PGConfig` are theirs).
+
+The critic may learn another reward than the environment's: `relabel`
+(`RewardRelabel`) keeps a state of its own (e.g. an archive of descriptors) and
+rewrites the rewards of every sampled batch. D-PG (Pierrot et al. 2022,
+"Diversity policy gradient for sample efficient quality-diversity
+optimization", GECCO) is Q-PG whose reward is the novelty of the next state's
+descriptor with respect to an archive (`qdrl.qd.emitters.novelty`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Any, NamedTuple, Protocol
+
+import haiku as hk
+import jax
+import jax.numpy as jnp
+import optax
+
+from qdrl import buffers, nets
+from qdrl.agents.base import Agent
+from qdrl.agents.td3 import TD3Config, TD3Networks, TD3State, make_td3, td3_actor_step
+from qdrl.buffers import ReplayBuffer
+from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
+from qdrl.qd.emitters.ga import isoline_emitter
+from qdrl.qd.emitters.multi import MultiEmitter, split_batch
+from qdrl.types import Array, Genotype, Params, PRNGKey, Transition
+
+
+@dataclasses.dataclass(frozen=True)
+class PGConfig:
+    """Hyperparameters of a policy-gradient emitter; defaults: PGA-ME (Nilsson & Cully 2021, QDax).
+
+    The TD3 part (critic, greedy actor, targets) is TD3 with these values; the
+    offspring's own optimiser is Adam at `policy_learning_rate`.
+    """
+
+    # TD3 critic steps (each also a greedy-actor step every `policy_delay`) per update.
+    num_critic_training_steps: int = 300
+    # TD3 actor steps applied to each parent to make one offspring.
+    num_pg_training_steps: int = 100
+    # Adam step size of the actor steps applied to offspring.
+    policy_learning_rate: float = 1e-3
+    # Adam step size of the twin critic.
+    critic_learning_rate: float = 3e-4
+    # Adam step size of the greedy actor (TD3's own actor).
+    greedy_learning_rate: float = 3e-4
+    # Transitions per sampled batch (critic and offspring steps alike).
+    training_batch_size: int = 256
+    # Slots of the replay buffer.
+    replay_buffer_size: int = 1_000_000
+    discount: float = 0.99
+    # Polyak rate of the target networks.
+    tau: float = 0.005
+    # Target policy smoothing noise and its clip (TD3).
+    policy_noise: float = 0.2
+    noise_clip: float = 0.5
+    # Greedy actor and targets are updated once every `policy_delay` critic steps.
+    policy_delay: int = 2
+    reward_scale: float = 1.0
+    # Hidden widths of each of the twin critics (ReLU).
+    critic_hidden: tuple[int, ...] = (256, 256)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.critic_hidden, list):
+            object.__setattr__(self, "critic_hidden", tuple(self.critic_hidden))
+
+    def td3_config(self) -> TD3Config:
+        """The TD3 these values describe (its `hidden` is the critic's; the actor is the genotype)."""
+        return TD3Config(
+            actor_lr=self.greedy_learning_rate,
+            critic_lr=self.critic_learning_rate,
+            discount=self.discount,
+            tau=self.tau,
+            reward_scale=self.reward_scale,
+            policy_noise=self.policy_noise,
+            noise_clip=self.noise_clip,
+            policy_delay=self.policy_delay,
+            hidden=self.critic_hidden,
+            activation="relu",
+        )
+
+    def check(self, section: str = "pg") -> None:
+        """Raises ValueError naming `section.<field>` and the expected value."""
+        for name in ("num_critic_training_steps", "num_pg_training_steps"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 0):
+                raise ValueError(f"{section}.{name}: expected an integer >= 0, got {value!r}")
+        for name in ("training_batch_size", "replay_buffer_size"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{section}.{name}: expected a positive integer, got {value!r}")
+        lr = self.policy_learning_rate
+        if not (isinstance(lr, int | float) and math.isfinite(lr) and lr > 0):
+            raise ValueError(f"{section}.policy_learning_rate: expected a float > 0, got {lr!r}")
+        try:
+            self.td3_config().check()
+        except ValueError as e:
+            # TD3Config names its own fields ("agent.actor_lr"); name ours instead.
+            names = {"actor_lr": "greedy_learning_rate", "critic_lr": "critic_learning_rate",
+                     "hidden": "critic_hidden"}
+            field = str(e).split(":")[0].removeprefix("agent.")
+            raise ValueError(
+                f"{section}.{names.get(field, field)}:{str(e).split(':', 1)[1]}"
+            ) from e
+
+
+class RewardRelabel(Protocol):
+    """A learned-reward hook: its own state, updated from evaluations, rewriting sampled rewards."""
+
+    def init(self, evaluation: Evaluation, key: PRNGKey) -> Any:
+        """The hook's state from the initial population's evaluation."""
+        ...
+
+    def update(self, state: Any, evaluation: Evaluation, key: PRNGKey) -> Any:
+        """The state after a batch of evaluations."""
+        ...
+
+    def relabel(self, state: Any, transitions: Transition) -> Transition:
+        """`transitions` (batch, ...) with their rewards replaced."""
+        ...
+
+
+class PGEmitterState(NamedTuple):
+    """Q-PG / D-PG emitter state: the TD3 agent, its one replay buffer, the reward hook's state."""
+
+    td3: TD3State
+    buffer: ReplayBuffer
+    relabel: Any  # None for Q-PG
+
+
+def flatten_valid(transitions: Transition, mask: Array) -> tuple[Transition, Array]:
+    """(T, n, ...) transitions and (T, n) mask as (T*n, ...) items, valid ones first, and their count."""
+    flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), transitions)
+    valid = mask.reshape(-1) > 0
+    order = jnp.argsort(~valid, stable=True)
+    return jax.tree.map(lambda x: x[order], flat), jnp.sum(valid).astype(jnp.int32)
+
+
+def insert_valid(buffer: ReplayBuffer, transitions: Transition, mask: Array) -> ReplayBuffer:
+    """Insert only the transitions where `mask` is 1 (steps inside an episode) into the ring.
+
+    The number of valid items is traced, the batch shape is static: all T*n items
+    are written with `buffers.insert`, the invalid ones with the slot's current
+    content (so the ring is unchanged there), and `position` / `size` advance by
+    the valid count only. Needs T*n <= capacity.
+    """
+    items, num_valid = flatten_valid(transitions, mask)
+    n = int(jax.tree.leaves(items)[0].shape[0])
+    capacity = buffer.capacity
+    if n > capacity:
+        raise ValueError(
+            f"replay_buffer_size: expected at least the {n} transitions of one evaluation batch "
+            f"(episode length x batch), got {capacity}"
+        )
+    i = jnp.arange(n, dtype=jnp.int32)
+    slots = (buffer.position + i) % capacity
+    keep_new = i < num_valid
+    items = jax.tree.map(
+        lambda new, store: jnp.where(
+            keep_new.reshape((n,) + (1,) * (new.ndim - 1)), new, store[slots]
+        ),
+        items,
+        buffer.data,
+    )
+    written = buffers.insert(buffer, items)
+    return written._replace(
+        position=((buffer.position + num_valid) % capacity).astype(jnp.int32),
+        size=jnp.minimum(buffer.size + num_valid, capacity).astype(jnp.int32),
+    )
+
+
+def _concat(*trees: Genotype) -> Genotype:
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *trees)
+
+
+@dataclasses.dataclass(eq=False)
+class PGEmitter:
+    """Q-PG emitter (PGA-ME); with a `relabel` hook, D-PG (QD-PG). See the module docstring.
+
+    `batch_size` offspring per `emit`: `batch_size - 1` policy-gradient offspring of
+    parents drawn uniformly from the repertoire, then the greedy actor (with
+    `emit_greedy`, as QDax; otherwise all `batch_size` are PG offspring).
+    `policy_network` is the genotypes' network (`apply(params, obs) -> action` in
+    [-1, 1]); the TD3 actor is that network, so the greedy actor is a genotype.
+    `update` reads `evaluation.extras["transitions"]` (T, n, ...) and
+    `extras["mask"]` (T, n) — every evaluated episode, not only this emitter's.
+    """
+
+    batch_size: int
+    policy_network: hk.Transformed
+    obs_size: int
+    action_size: int
+    config: PGConfig = dataclasses.field(default_factory=PGConfig)
+    relabel: RewardRelabel | None = None
+    emit_greedy: bool = True
+    networks: TD3Networks = dataclasses.field(init=False)
+    agent: Agent = dataclasses.field(init=False)
+
+    def __post_init__(self) -> None:
+        self.config.check()
+        if not (isinstance(self.batch_size, int) and self.batch_size >= 1):
+            raise ValueError(f"batch_size: expected a positive integer, got {self.batch_size!r}")
+        self.networks = TD3Networks(
+            policy=self.policy_network,
+            critic=nets.twin_q_critic(self.config.critic_hidden, "relu"),
+        )
+        self.agent = make_td3(
+            self.config.td3_config(), self.obs_size, self.action_size, self.networks
+        )
+
+    @property
+    def num_pg(self) -> int:
+        """Offspring per batch made by policy-gradient steps on a parent."""
+        return self.batch_size - 1 if self.emit_greedy else self.batch_size
+
+    def init(
+        self, key: PRNGKey, repertoire: Repertoire, evaluation: Evaluation, genotypes: Genotype
+    ) -> PGEmitterState:
+        """A fresh TD3 agent and an empty buffer, then a first `update` on the initial population."""
+        agent_key, relabel_key, update_key = jax.random.split(key, 3)
+        transitions = _transitions(evaluation)
+        example = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[2:], x.dtype), transitions)
+        relabel = None
+        if self.relabel is not None:
+            relabel = self.relabel.init(evaluation, relabel_key)
+        state = PGEmitterState(
+            td3=self.agent.init(agent_key),
+            buffer=buffers.init(example, self.config.replay_buffer_size),
+            relabel=relabel,
+        )
+        return self._learn(state, evaluation, update_key)
+
+    def emit(self, state: PGEmitterState, repertoire: Repertoire, key: PRNGKey) -> Genotype:
+        """`num_pg` parents improved by TD3 actor steps, then the greedy actor."""
+        parent_key, pg_key = jax.random.split(key)
+        parts = []
+        if self.num_pg > 0:
+            parents = repertoire.sample(parent_key, self.num_pg)
+            keys = jax.random.split(pg_key, self.num_pg)
+            parts.append(jax.vmap(self.pg_variation, in_axes=(None, 0, 0))(state, parents, keys))
+        if self.emit_greedy:
+            parts.append(jax.tree.map(lambda x: x[None], state.td3.policy_params))
+        return parts[0] if len(parts) == 1 else _concat(*parts)
+
+    def pg_variation(self, state: PGEmitterState, params: Params, key: PRNGKey) -> Params:
+        """One parent after `num_pg_training_steps` TD3 actor steps against the emitter's critic.
+
+        Fresh Adam moments (as QDax's `_mutation_function_pg`), one batch sampled from
+        the buffer per step.
+        """
+        lr = jnp.asarray(self.config.policy_learning_rate, jnp.float32)
+
+        def step(
+            carry: tuple[Params, optax.OptState], k: PRNGKey
+        ) -> tuple[tuple[Params, optax.OptState], Array]:
+            p, opt = carry
+            batch = self._sample(state, k)
+            p, opt, loss = td3_actor_step(
+                self.networks, p, opt, state.td3.critic_params, batch.obs, lr
+            )
+            return (p, opt), loss
+
+        opt_state = optax.scale_by_adam().init(params)
+        keys = jax.random.split(key, self.config.num_pg_training_steps)
+        (params, _), _ = jax.lax.scan(step, (params, opt_state), keys)
+        return params
+
+    def update(
+        self,
+        state: PGEmitterState,
+        repertoire: Repertoire,
+        genotypes: Genotype,
+        evaluation: Evaluation,
+        added: AddResult,
+        key: PRNGKey,
+    ) -> PGEmitterState:
+        """Store the evaluated transitions, then train critic and greedy actor (TD3's `update`)."""
+        del repertoire, genotypes, added
+        return self._learn(state, evaluation, key)
+
+    def _sample(self, state: PGEmitterState, key: PRNGKey) -> Transition:
+        batch: Transition = buffers.sample(state.buffer, key, self.config.training_batch_size)
+        if self.relabel is not None:
+            batch = self.relabel.relabel(state.relabel, batch)
+        return batch
+
+    def _learn(self, state: PGEmitterState, evaluation: Evaluation, key: PRNGKey) -> PGEmitterState:
+        transitions = _transitions(evaluation)
+        buffer = insert_valid(state.buffer, transitions, evaluation.extras["mask"])
+        relabel_state = state.relabel
+        if self.relabel is not None:
+            relabel_key, key = jax.random.split(key)
+            relabel_state = self.relabel.update(state.relabel, evaluation, relabel_key)
+        state = PGEmitterState(td3=state.td3, buffer=buffer, relabel=relabel_state)
+
+        def train(td3: TD3State, k: PRNGKey) -> tuple[TD3State, None]:
+            sample_key, update_key = jax.random.split(k)
+            batch = self._sample(state, sample_key)
+            td3, _ = self.agent.update(td3, batch, update_key)
+            return td3, None
+
+        keys = jax.random.split(key, self.config.num_critic_training_steps)
+        td3, _ = jax.lax.scan(train, state.td3, keys)
+        return state._replace(td3=td3)
+
+
+def _transitions(evaluation: Evaluation) -> Transition:
+    if "transitions" not in evaluation.extras or "mask" not in evaluation.extras:
+        raise ValueError(
+            "policy-gradient emitters need evaluation.extras['transitions'] and ['mask'] "
+            "(the episodes of a policy task, qdrl.tasks.policy); got extras "
+            f"{sorted(evaluation.extras)}"
+        )
+    transitions: Transition = evaluation.extras["transitions"]
+    return transitions
+
+
+def pga_me_emitter(
+    batch_size: int,
+    policy_network: hk.Transformed,
+    obs_size: int,
+    action_size: int,
+    config: PGConfig | None = None,
+    proportion_mutation_ga: float = 0.5,
+    make_ga: Callable[[int], Emitter] | None = None,
+) -> MultiEmitter:
+    """PGA-ME's emitter (Nilsson & Cully 2021): a GA and Q-PG share one batch.
+
+    `proportion_mutation_ga` of the `batch_size` offspring come from `make_ga(n)`
+    (default: iso+line variation, iso_sigma 0.005, line_sigma 0.05, as QDax's
+    PGA-ME), the rest from Q-PG, whose last offspring is the greedy actor. The
+    Q-PG emitter learns from the transitions of the whole batch.
+    """
+    if not 0.0 < proportion_mutation_ga < 1.0:
+        raise ValueError(
+            f"proportion_mutation_ga: expected a number in (0, 1), got {proportion_mutation_ga!r}"
+        )
+    ga_size, pg_size = split_batch(batch_size, (proportion_mutation_ga, 1.0 - proportion_mutation_ga))
+    if ga_size < 1 or pg_size < 1:
+        raise ValueError(
+            f"batch_size: expected room for both the GA and the Q-PG share "
+            f"(proportion_mutation_ga={proportion_mutation_ga}), got {batch_size}"
+        )
+    ga = make_ga(ga_size) if make_ga is not None else isoline_emitter(ga_size, 0.005, 0.05)
+    pg = PGEmitter(pg_size, policy_network, obs_size, action_size, config or PGConfig())
+    return MultiEmitter((ga, pg))
+
+
+__all__ = [
+    "PGConfig",
+    "PGEmitter",
+    "PGEmitterState",
+    "RewardRelabel",
+    "flatten_valid",
+    "insert_valid",
+    "pga_me_emitter",
+]
