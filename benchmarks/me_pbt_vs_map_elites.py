@@ -69,7 +69,7 @@ def main() -> None:
     (HERE / "results" / f"me_pbt_vs_map_elites_{args.task}.json").write_text(json.dumps(record, indent=2) + "\n")
     plot_comparison({"ME-PBT (SAC)": pbt_rows, "MAP-Elites": me_rows}, "qd_score", "env_steps",
                     ROOT / "docs" / f"me_pbt_vs_map_elites_{args.task}.png",
-                    title=f"{args.task}: QD score against env steps (training steps included)")
+                    title=f"{args.task}: QD score vs env steps")
     print(json.dumps(record, indent=2))
 
 

@@ -383,3 +383,32 @@ def run_bench(
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps(record, indent=2) + "\n")
     return record
+
+
+@_register("skills")
+def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
+    """DIAYN, DADS, SMERL (on each) next to SAC: same env, networks, batch and update ratio.
+
+    point_maze (and ant, spring, unless `quick`): 16 envs, 16 updates of batch 256 per
+    iteration, (256, 256) networks, 10 skills; the skill models are (256, 256) too.
+    """
+    from qdrl.runners.skills import skill_trainer_builder
+
+    algorithms: tuple[str, ...] = ("sac", "diayn", "dads", "smerl_diayn", "smerl_dads")
+    if config is not None:
+        algorithms = ("sac", config)
+    envs_ = (("point_maze", 100),) if quick else (("point_maze", 100), ("ant", 1000))
+    records = []
+    for env_name, episode_length in envs_:
+        for a in algorithms:
+            build = None if a == "sac" else skill_trainer_builder(a, hidden=(256, 256), num_skills=10)
+            records.append(
+                time_trainer(
+                    a, env_name, episode_length=episode_length, seed=seed, build=build,
+                    iters_per_chunk=50 if quick else 250, repeats=1 if quick else 2,
+                )
+            )
+    sac = {r["env"]: r["env_steps_per_s"] for r in records if r["algorithm"] == "sac"}
+    for r in records:
+        r["relative_to_sac"] = round(r["env_steps_per_s"] / sac[r["env"]], 3)
+    return records

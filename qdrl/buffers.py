@@ -23,7 +23,17 @@ import numpy as np
 
 from qdrl.types import Array, PRNGKey, PyTree
 
-__all__ = ["ReplayBuffer", "can_sample", "init", "insert", "sample"]
+__all__ = [
+    "ReplayBuffer",
+    "TrajectoryBuffer",
+    "can_sample",
+    "init",
+    "insert",
+    "sample",
+    "trajectory_init",
+    "trajectory_insert",
+    "trajectory_sample",
+]
 
 
 class ReplayBuffer(NamedTuple):
@@ -186,3 +196,118 @@ def sample(buffer: ReplayBuffer, key: PRNGKey, batch_size: int) -> PyTree:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     idx = jax.random.randint(key, (batch_size,), 0, buffer.size)
     return jax.tree_util.tree_map(lambda store: store[idx], buffer.data)
+
+
+# --- Trajectory buffer: transitions that know their episode's return (SMERL) ---
+
+
+class TrajectoryBuffer(NamedTuple):
+    """A ring buffer whose items also know the return of the episode they belong to.
+
+    SMERL (Kumar et al. 2020, "One Solution is Not All You Need", eq. 3) gates each
+    transition's diversity reward on its *episode's* return, known only once the
+    episode ends. Each transition is written at once into `ring` with the id of
+    its episode; when an episode ends its return is written into a table slot
+    `id % table_size`, tagged with the id. `trajectory_sample` looks the return up
+    by id: transitions of episodes still running, or of episodes whose table slot
+    has since been reused, get NaN (a NaN return never passes a `>=` gate).
+
+    Attributes:
+      ring: a `ReplayBuffer` of `(item, episode_id)` pairs.
+      returns: (table_size,) float32, returns of finished episodes (NaN if none).
+      return_ids: (table_size,) int32, the episode id each `returns` slot holds (-1 if none).
+      episode_ids: (num_envs,) int32, the id of each environment's running episode.
+      next_id: int32 scalar, the id the next episode to start gets.
+    """
+
+    ring: ReplayBuffer
+    returns: Array
+    return_ids: Array
+    episode_ids: Array
+    next_id: Array
+
+    @property
+    def size(self) -> Array:
+        """Number of valid transitions, as `ReplayBuffer.size`."""
+        return self.ring.size
+
+    @property
+    def capacity(self) -> int:
+        return self.ring.capacity
+
+
+def trajectory_init(example: PyTree, capacity: int, num_envs: int) -> TrajectoryBuffer:
+    """An empty trajectory buffer of `capacity` items written by `num_envs` environments.
+
+    The return table has `capacity + num_envs` slots, one per episode that can own a
+    stored transition in the common case (episodes at least as long as the number
+    of environments ending together). A slot reused by a newer episode is detected
+    by its id tag: the older transitions then read NaN, never another episode's return.
+    """
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs <= 0:
+        raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+    ring = init((example, jnp.zeros((), jnp.int32)), capacity)
+    table = int(capacity) + int(num_envs)
+    return TrajectoryBuffer(
+        ring=ring,
+        returns=jnp.full((table,), jnp.nan, jnp.float32),
+        return_ids=jnp.full((table,), -1, jnp.int32),
+        episode_ids=jnp.arange(num_envs, dtype=jnp.int32),
+        next_id=jnp.asarray(num_envs, jnp.int32),
+    )
+
+
+def trajectory_insert(
+    buffer: TrajectoryBuffer, items: PyTree, done: Array, episode_return: Array
+) -> TrajectoryBuffer:
+    """Writes one step of the `num_envs` environments, and the returns of the episodes it ends.
+
+    Args:
+      buffer: the buffer.
+      items: pytree whose leaves have leading axis `num_envs` (one transition per env).
+      done: (num_envs,) nonzero where this step ended the env's episode.
+      episode_return: (num_envs,) the ended episodes' returns (read where `done`).
+
+    Returns:
+      The buffer with the items stored under their episodes' ids; each ended
+      episode's return recorded, and its environment given a fresh id.
+    """
+    num_envs = buffer.episode_ids.shape[0]
+    done = jnp.asarray(done) > 0
+    want = (num_envs,)
+    if done.shape != want or jnp.shape(episode_return) != want:
+        raise ValueError(
+            f"trajectory_insert: done and episode_return must have shape {want}, "
+            f"got {done.shape} and {jnp.shape(episode_return)}"
+        )
+    ring = insert(buffer.ring, (items, buffer.episode_ids))
+    table = buffer.returns.shape[0]
+    # Environments that did not finish write to an out-of-range slot, which "drop" discards.
+    slot = jnp.where(done, buffer.episode_ids % table, table)
+    returns = buffer.returns.at[slot].set(episode_return.astype(jnp.float32), mode="drop")
+    return_ids = buffer.return_ids.at[slot].set(buffer.episode_ids, mode="drop")
+    rank = jnp.cumsum(done.astype(jnp.int32)) - 1
+    episode_ids = jnp.where(done, buffer.next_id + rank, buffer.episode_ids)
+    return TrajectoryBuffer(
+        ring=ring,
+        returns=returns,
+        return_ids=return_ids,
+        episode_ids=episode_ids.astype(jnp.int32),
+        next_id=(buffer.next_id + jnp.sum(done, dtype=jnp.int32)).astype(jnp.int32),
+    )
+
+
+def trajectory_sample(
+    buffer: TrajectoryBuffer, key: PRNGKey, batch_size: int
+) -> tuple[PyTree, Array]:
+    """Draws `batch_size` items uniformly with replacement, with their episodes' returns.
+
+    Returns:
+      `(items, episode_returns)`: the items (leading axis `batch_size`) and a
+      (batch_size,) float32 array, NaN for a transition whose episode has not
+      ended yet (or whose return was overwritten).
+    """
+    items, ids = sample(buffer.ring, key, batch_size)
+    slot = ids % buffer.returns.shape[0]
+    known = buffer.return_ids[slot] == ids
+    return items, jnp.where(known, buffer.returns[slot], jnp.nan)

@@ -108,7 +108,7 @@ def register(name: str) -> Callable[[RunBuilder], RunBuilder]:
 
 
 def _load_builtin_runs() -> None:
-    from qdrl.runners import pbt, qd, rl  # noqa: F401  (registers their algorithms)
+    from qdrl.runners import pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
 
 
 def build_run(spec: Mapping[str, Any]) -> tuple[Run, ExperimentConfig, LogConfig]:

@@ -5,7 +5,9 @@ One iteration acts in `num_envs` environments, inserts those transitions into
 the replay buffer and runs `grad_steps_per_iter` agent updates on uniformly
 sampled batches. Before `learning_starts` environment steps, actions are uniform
 random and no update runs. `Trainer.run_chunk` scans many iterations; Python
-only runs between chunks.
+only runs between chunks. Where transitions are stored is a parameter
+(`Storage`): the ring replay buffer by default, or a buffer that also knows each
+transition's episode return (`EPISODE_RETURNS`, for SMERL).
 """
 
 from __future__ import annotations
@@ -74,11 +76,45 @@ class TrainConfig:
         return -(-self.total_env_steps // self.eval_every)
 
 
+class Storage(NamedTuple):
+    """Where the loop stores transitions and how it samples the batches `agent.update` gets.
+
+    init(example_transition, capacity, num_envs) -> buffer   (a pytree with `.size`)
+    insert(buffer, transitions, env_state_after_step) -> buffer
+    sample(buffer, key, n) -> batch of n items, the `transitions` argument of `agent.update`
+    """
+
+    init: Callable[[Transition, int, int], Any]
+    insert: Callable[[Any, Transition, EnvState], Any]
+    sample: Callable[[Any, PRNGKey, int], Any]
+
+
+# The ring replay buffer: batches are `Transition`s.
+REPLAY = Storage(
+    init=lambda example, capacity, num_envs: buffers.init(example, capacity),
+    insert=lambda buffer, transitions, env_state: buffers.insert(buffer, transitions),
+    sample=buffers.sample,
+)
+
+# The trajectory buffer: batches are `(Transition, episode_return)` (SMERL). After
+# `auto_reset`, `last_return` holds the return of the episode a step just ended.
+EPISODE_RETURNS = Storage(
+    init=buffers.trajectory_init,
+    insert=lambda buffer, transitions, env_state: buffers.trajectory_insert(
+        buffer,
+        transitions,
+        jnp.maximum(transitions.terminated, transitions.truncated),
+        env_state.last_return,
+    ),
+    sample=buffers.trajectory_sample,
+)
+
+
 class TrainState(NamedTuple):
     """Everything a run carries between iterations; checkpointing saves exactly this."""
 
     agent: AgentState
-    buffer: buffers.ReplayBuffer
+    buffer: Any  # the `Storage`'s buffer: a `buffers.ReplayBuffer` by default
     env: EnvState
     key: PRNGKey
     env_steps: Array  # int32, environment steps taken
@@ -101,8 +137,13 @@ def _transition_example(env: Env) -> Transition:
     return Transition(obs, action, scalar, obs, scalar, scalar, desc, desc)
 
 
-def make_trainer(env: Env, agent: Agent, config: TrainConfig) -> Trainer:
-    """Build the init / chunk / evaluate functions of an off-policy run of `agent` on `env`."""
+def make_trainer(
+    env: Env, agent: Agent, config: TrainConfig, storage: Storage = REPLAY
+) -> Trainer:
+    """Build the init / chunk / evaluate functions of an off-policy run of `agent` on `env`.
+
+    `storage` says where transitions go and what batches `agent.update` receives.
+    """
     config.check()
     action_size = env.action_size
 
@@ -110,21 +151,21 @@ def make_trainer(env: Env, agent: Agent, config: TrainConfig) -> Trainer:
         agent_key, env_key, key = jax.random.split(key, 3)
         return TrainState(
             agent=agent.init(agent_key),
-            buffer=buffers.init(_transition_example(env), config.buffer_size),
+            buffer=storage.init(_transition_example(env), config.buffer_size, config.num_envs),
             env=reset_batch(env, env_key, config.num_envs),
             key=key,
             env_steps=jnp.zeros((), jnp.int32),
             grad_steps=jnp.zeros((), jnp.int32),
         )
 
-    def updates(agent_state: AgentState, buffer: buffers.ReplayBuffer, key: PRNGKey) -> Any:
+    def updates(agent_state: AgentState, buffer: Any, key: PRNGKey) -> Any:
         # All batches of the iteration come from one gather, then one update each.
         sample_key, update_key = jax.random.split(key)
         n = config.grad_steps_per_iter
-        flat = buffers.sample(buffer, sample_key, n * config.batch_size)
+        flat = storage.sample(buffer, sample_key, n * config.batch_size)
         batches = jax.tree.map(lambda x: x.reshape((n, config.batch_size, *x.shape[1:])), flat)
 
-        def one(s: AgentState, xs: tuple[Transition, PRNGKey]) -> tuple[AgentState, Any]:
+        def one(s: AgentState, xs: tuple[Any, PRNGKey]) -> tuple[AgentState, Any]:
             return agent.update(s, xs[0], xs[1])
 
         s, metrics = jax.lax.scan(one, agent_state, (batches, jax.random.split(update_key, n)))
@@ -140,13 +181,13 @@ def make_trainer(env: Env, agent: Agent, config: TrainConfig) -> Trainer:
             return jnp.where(warmup, uniform, agent.act(ts.agent, obs, agent_key))
 
         env_state, transition = env_step(env, ts.env, policy, act_key)
-        buffer = buffers.insert(ts.buffer, transition)
+        buffer = storage.insert(ts.buffer, transition, env_state)
         env_steps = ts.env_steps + config.num_envs
         can_train = (env_steps >= config.learning_starts) & (buffer.size >= config.batch_size)
 
         metric_shapes = jax.eval_shape(updates, ts.agent, buffer, update_key)[1]
 
-        def skip(s: AgentState, b: buffers.ReplayBuffer, k: PRNGKey) -> Any:
+        def skip(s: AgentState, b: Any, k: PRNGKey) -> Any:
             return s, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), metric_shapes)
 
         agent_state, metrics = jax.lax.cond(can_train, updates, skip, ts.agent, buffer, update_key)

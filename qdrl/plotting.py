@@ -21,7 +21,14 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-__all__ = ["COUNTER_KEYS", "default_y_keys", "plot_comparison", "plot_curves", "plot_repertoire"]
+__all__ = [
+    "COUNTER_KEYS",
+    "default_y_keys",
+    "plot_comparison",
+    "plot_curves",
+    "plot_repertoire",
+    "plot_skills",
+]
 
 # Columns that count progress rather than measure it; never plotted as y by default.
 COUNTER_KEYS = frozenset(
@@ -249,6 +256,36 @@ def _max_by_bin(
     return out
 
 
+def _save(fig: Figure, path: str | Path, title: str = "") -> Path:
+    """Titles `fig` (when `title`) and writes it as a PNG at `path`, creating its directory."""
+    if title:
+        fig.suptitle(title)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    return out
+
+
+def _draw_grid(
+    ax: Axes,
+    fitnesses: np.ndarray,
+    grid_shape: Sequence[int],
+    dims: tuple[int, int],
+    low: Any,
+    high: Any,
+    cmap: Any,
+    norm: Any,
+) -> Any:
+    """Draws a grid repertoire's cells on `dims` (max over the other dimensions); empty cells blank."""
+    dx, dy = dims
+    values = np.moveaxis(np.asarray(fitnesses).reshape(tuple(grid_shape)), (dx, dy), (0, 1))
+    values = values.reshape(values.shape[0], values.shape[1], -1).max(axis=-1)
+    x_edges = np.linspace(low[dx], high[dx], values.shape[0] + 1)
+    y_edges = np.linspace(low[dy], high[dy], values.shape[1] + 1)
+    image = np.ma.masked_invalid(np.where(values > -np.inf, values, np.nan).T)
+    return ax.pcolormesh(x_edges, y_edges, image, cmap=cmap, norm=norm)
+
+
 def plot_repertoire(
     repertoire: Any,
     path: str | Path,
@@ -333,12 +370,7 @@ def plot_repertoire(
     box = (lo[dx], hi[dx], lo[dy], hi[dy])
 
     if grid_shape is not None:
-        values = np.moveaxis(fitnesses.reshape(grid_shape), (dx, dy), (0, 1))
-        values = values.reshape(values.shape[0], values.shape[1], -1).max(axis=-1)
-        x_edges = np.linspace(grid_lo[dx], grid_hi[dx], values.shape[0] + 1)
-        y_edges = np.linspace(grid_lo[dy], grid_hi[dy], values.shape[1] + 1)
-        image = np.ma.masked_invalid(np.where(values > -np.inf, values, np.nan).T)
-        ax.pcolormesh(x_edges, y_edges, image, cmap=colours, norm=norm)
+        _draw_grid(ax, fitnesses, grid_shape, (dx, dy), grid_lo, grid_hi, colours, norm)
     elif centroids is not None and num_dims == 2:
         from scipy.spatial import cKDTree
 
@@ -395,9 +427,86 @@ def plot_repertoire(
     else:
         ax.set_ylabel(f"descriptor {dy}")
     fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=ax, label="fitness")
-    if title:
-        fig.suptitle(title)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
-    return out
+    return _save(fig, path, title)
+
+
+def plot_skills(
+    trajectories: np.ndarray,
+    skills: np.ndarray,
+    mask: np.ndarray,
+    path: str | Path,
+    low: Sequence[float],
+    high: Sequence[float],
+    archive: Any = None,
+    title: str = "",
+    trajectories_are_positions: bool = True,
+    dims: tuple[int, int] = (0, 1),
+) -> Path:
+    """Writes a PNG of each skill's trajectory in descriptor space, beside the archive heatmap.
+
+    Left: one line per episode, coloured by its skill, from its start (dot) to its
+    end (cross). With `trajectories_are_positions` (final-position tasks: the state
+    descriptor is the x-y position) the line is the state descriptor itself;
+    otherwise (episode-mean descriptors, e.g. feet contact) it is the running mean
+    of the state descriptor, which ends at the episode's descriptor. Right (when
+    `archive` is a grid repertoire): its fitness heatmap.
+
+    Args:
+      trajectories: (T, B, D) state descriptors after each step of B episodes.
+      skills: (B,) int skill of each episode.
+      mask: (T, B) 1.0 for the steps inside each episode.
+      path: PNG to write.
+      low, high: descriptor bounds (axes limits).
+      archive: a grid passive archive (`fitnesses`, `grid_shape`), or None.
+      title: figure title.
+      trajectories_are_positions: see above.
+      dims: the two descriptor dimensions shown.
+    """
+    from matplotlib import colormaps
+    from matplotlib.colors import Normalize
+
+    traj = np.asarray(trajectories, dtype=np.float64)
+    valid = np.asarray(mask, dtype=np.float64)
+    if traj.ndim != 3 or valid.shape != traj.shape[:2]:
+        raise ValueError(
+            f"trajectories (T, B, D) and mask (T, B) expected, got {traj.shape} and {valid.shape}"
+        )
+    dx, dy = dims
+    if not trajectories_are_positions:
+        counts = np.maximum(np.cumsum(valid, axis=0), 1.0)[..., None]
+        traj = np.cumsum(traj * valid[..., None], axis=0) / counts
+    skills = np.asarray(skills, dtype=np.int64)
+    num_skills = int(skills.max()) + 1 if skills.size else 1
+    palette = colormaps["tab20" if num_skills <= 20 else "turbo"]
+    fig = Figure(figsize=(11.0 if archive is not None else 5.5, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2 if archive is not None else 1, squeeze=False)[0]
+    ax = axes[0]
+    for b in range(traj.shape[1]):
+        n = int(valid[:, b].sum())
+        if n == 0:
+            continue
+        colour = palette((skills[b] % 20) / 19.0 if num_skills <= 20 else skills[b] / num_skills)
+        xs, ys = traj[:n, b, dx], traj[:n, b, dy]
+        ax.plot(xs, ys, color=colour, linewidth=1.0, alpha=0.8)
+        ax.plot(xs[0], ys[0], "o", color=colour, markersize=3)
+        ax.plot(xs[-1], ys[-1], "x", color=colour, markersize=6)
+    ax.set_xlim(low[dx], high[dx])
+    ax.set_ylim(low[dy], high[dy])
+    ax.set_xlabel(f"descriptor {dx}")
+    ax.set_ylabel(f"descriptor {dy}")
+    kind = "trajectories" if trajectories_are_positions else "running-mean descriptors"
+    ax.set_title(f"{num_skills} skills: {kind}")
+    if archive is not None:
+        fitnesses = np.asarray(archive.fitnesses, dtype=np.float64)
+        shown = fitnesses[np.isfinite(fitnesses)]
+        norm = Normalize(*(shown.min(), shown.max()) if shown.size else (0.0, 1.0))
+        mesh = _draw_grid(
+            axes[1], fitnesses, archive.grid_shape, (dx, dy), low, high,
+            colormaps["viridis"].with_extremes(bad="white"), norm,
+        )
+        filled = int(np.sum(fitnesses > -np.inf))
+        axes[1].set_title(f"passive archive: {filled} / {fitnesses.size} cells")
+        axes[1].set_xlabel(f"descriptor {dx}")
+        fig.colorbar(mesh, ax=axes[1], label="fitness (return)")
+    return _save(fig, path, title)

@@ -1,0 +1,154 @@
+"""DIAYN: Diversity Is All You Need (Eysenbach et al. 2018, arXiv:1802.06070).
+
+Skills z are one-hot codes appended to the observation (`qdrl.envs.skills`); a
+discriminator q_phi(z | s) learns to tell the skill from the state it leads to,
+and the policy (SAC, unchanged) maximises the pseudo-reward of Algorithm 1,
+
+    r_div = log q_phi(z | s_{t+1}) - log p(z),   p(z) uniform over K skills,
+
+so r_div = log q_phi(z | s') + log K: 0 at chance, log K when the discriminator
+is sure. The discriminator reads the state descriptor (e.g. the x-y position,
+the "x-y prior" of the paper's appendix) or the full observation (without the
+skill code), as configured, and is trained with its own Adam on the same batch,
+by cross-entropy, in the same update step (`qdrl.agents.intrinsic`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import haiku as hk
+import jax
+import jax.numpy as jnp
+import optax
+
+from qdrl import nets
+from qdrl.agents.base import Agent
+from qdrl.agents.intrinsic import (
+    Gate,
+    Info,
+    RewardModule,
+    SkillInput,
+    SkillModelConfig,
+    with_intrinsic_reward,
+)
+from qdrl.envs.skills import skill_of, strip_skill
+from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
+
+
+@dataclasses.dataclass(frozen=True)
+class DIAYNConfig(SkillModelConfig):
+    """DIAYN's own settings (the `[skills]` section); SAC's are the `[agent]` section.
+
+    Defaults from Eysenbach et al. 2018 (appendix): 50 skills, a discriminator q(z|s')
+    of two hidden layers of 300 units, Adam 3e-4; pure skill discovery (no task reward).
+    """
+
+    num_skills: int = 50
+    hidden: tuple[int, ...] = (300, 300)
+
+
+class DiscriminatorState(NamedTuple):
+    """Parameters of q_phi(z | s) and their Adam moments."""
+
+    params: Params
+    opt_state: optax.OptState
+
+
+def discriminator_network(
+    num_skills: int, hidden: tuple[int, ...] = (300, 300), act: str = "relu"
+) -> hk.Transformed:
+    """x -> logits of q(z | x), shape (..., num_skills)."""
+
+    def forward(x: Array) -> Array:
+        return hk.nets.MLP([*hidden, num_skills], activation=nets.activation(act))(x)
+
+    return hk.without_apply_rng(hk.transform(forward))
+
+
+def diayn_reward(logits: Array, skills: Array) -> Array:
+    """r = log q(z | s') - log p(z) = log_softmax(logits)[z] + log K (Eysenbach et al., Alg. 1).
+
+    Args:
+      logits: (B, K) discriminator logits at the next states.
+      skills: (B,) int skills that produced them.
+    """
+    num_skills = logits.shape[-1]
+    log_q = jnp.take_along_axis(jax.nn.log_softmax(logits), skills[..., None], axis=-1)[..., 0]
+    return log_q + math.log(num_skills)
+
+
+def discriminator_loss(logits: Array, skills: Array) -> Array:
+    """Cross-entropy -E[log q(z | s')]: maximum likelihood of the skills that were played."""
+    return jnp.mean(optax.softmax_cross_entropy_with_integer_labels(logits, skills))
+
+
+def model_inputs(transitions: Transition, model_input: SkillInput, num_skills: int) -> Array:
+    """The next state as a skill model reads it: the descriptor, or the obs without skill code."""
+    if model_input == "descriptor":
+        return transitions.next_desc
+    return strip_skill(transitions.next_obs, num_skills)
+
+
+def make_diayn_module(config: DIAYNConfig, obs_size: int, descriptor_size: int) -> RewardModule:
+    """DIAYN's discriminator and reward as a `RewardModule`.
+
+    Args:
+      config: DIAYN settings.
+      obs_size: size of the environment's own observation (without the skill code).
+      descriptor_size: size of its state descriptor.
+    """
+    config.check()
+    k = config.num_skills
+    network = discriminator_network(k, config.hidden, config.activation)
+    in_size = descriptor_size if config.model_input == "descriptor" else obs_size
+    adam = optax.adam(config.learning_rate)
+
+    def init(key: PRNGKey) -> DiscriminatorState:
+        params = network.init(key, jnp.zeros((1, in_size), jnp.float32))
+        return DiscriminatorState(params, adam.init(params))
+
+    def reward(
+        state: DiscriminatorState, transitions: Transition, key: PRNGKey
+    ) -> tuple[Array, Info]:
+        del key
+        skills = skill_of(transitions.obs, k)
+        logits = network.apply(state.params, model_inputs(transitions, config.model_input, k))
+        correct = (jnp.argmax(logits, axis=-1) == skills).astype(jnp.float32)
+        return diayn_reward(logits, skills), {"discriminator_accuracy": correct}
+
+    def update(
+        state: DiscriminatorState, transitions: Transition, key: PRNGKey
+    ) -> tuple[DiscriminatorState, Metrics]:
+        del key
+        skills = skill_of(transitions.obs, k)
+        x = model_inputs(transitions, config.model_input, k)
+
+        def loss_fn(params: Params) -> Array:
+            return discriminator_loss(network.apply(params, x), skills)
+
+        loss, grads = jax.value_and_grad(loss_fn)(state.params)
+        updates, opt_state = adam.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        return DiscriminatorState(params, opt_state), {"discriminator_loss": loss}
+
+    return RewardModule(init=init, reward=reward, update=update)
+
+
+def make_diayn(
+    agent: Agent,
+    config: DIAYNConfig,
+    obs_size: int,
+    descriptor_size: int,
+    gate: Gate | None = None,
+) -> Agent:
+    """DIAYN: `agent` (SAC on obs + one-hot skill) trained on the discriminator's reward.
+
+    `gate` (SMERL, `qdrl.agents.smerl`) opens the diversity reward per transition.
+    """
+    module = make_diayn_module(config, obs_size, descriptor_size)
+    return with_intrinsic_reward(
+        agent, module, config.diversity_scale, config.extrinsic_scale, gate
+    )

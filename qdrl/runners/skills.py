@@ -1,0 +1,339 @@
+"""Skill-discovery runs (DIAYN, DADS, SMERL on either) for the experiment driver.
+
+A run is SAC on a skill-conditioned environment (`qdrl.envs.skills.SkillEnv`),
+trained by the one off-policy loop with batches relabelled by the intrinsic
+reward (`qdrl.agents.intrinsic`). Each log point evaluates every skill
+deterministically (`train.num_eval_envs` episodes, skill i % K in episode i)
+through `run_episodes` on the task's own environment, offers the episodes'
+(descriptor, return) to the task's passive archive, and logs the same QD metrics
+as every other algorithm, plus the skill model's metrics on the evaluation
+episodes (discriminator accuracy for DIAYN, skill-dynamics log-likelihood for
+DADS), at every step and at the episodes' last step.
+
+Algorithms: `diayn`, `dads`, `smerl_diayn`, `smerl_dads`. Sections: `[env]`
+(a task of `SKILL_TASKS`), `[agent]` (SAC), `[train]`, `[skills]` (the DIAYN or
+DADS config), `[smerl]` (SMERL's target and margin), `[archive]` (defaults: the
+task's descriptor bounds and QD offset).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from qdrl import off_policy
+from qdrl.agents.base import Agent, AgentState
+from qdrl.agents.dads import DADSConfig, make_dads_module
+from qdrl.agents.diayn import DIAYNConfig, make_diayn_module
+from qdrl.agents.intrinsic import RewardModule, with_intrinsic_reward
+from qdrl.agents.sac import SACConfig, make_sac
+from qdrl.agents.smerl import SMERLConfig, smerl_gate
+from qdrl.config import ConfigError, build
+from qdrl.envs.base import Env
+from qdrl.envs.skills import SkillEnv, append_skill
+from qdrl.experiment import ExperimentConfig, register
+from qdrl.off_policy import TrainConfig, make_trainer
+from qdrl.qd.metrics import qd_metrics
+from qdrl.qd.repertoires import observe
+from qdrl.rollout import run_episodes
+from qdrl.runners.rl import ArchiveConfig, OffPolicyRun, RLState
+from qdrl.types import Array, PRNGKey
+
+Backend = Literal["spring", "positional", "generalized", "mjx"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SkillTask:
+    """An environment for skill discovery and the passive archive that measures it.
+
+    Matches the QD task of the same name (`qdrl.tasks`): same environment, reward,
+    episode descriptor, bounds and QD offset, so skill discovery and QD algorithms
+    are compared on one scale.
+    """
+
+    make_env: Callable[[int, str], Env]  # (episode_length, backend) -> env
+    descriptor: Literal["final", "mean"]
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    offset_per_step: float  # qd_offset = -offset_per_step * episode_length
+
+
+def _brax(name: str, state_descriptor: str, reward: str | None = None) -> Callable[[int, str], Env]:
+    def make(episode_length: int, backend: str) -> Env:
+        from qdrl.envs.brax import BraxEnv
+
+        return BraxEnv(name, backend, episode_length, state_descriptor=state_descriptor, reward=reward)
+
+    return make
+
+
+def _point_maze(episode_length: int, backend: str) -> Env:
+    del backend
+    from qdrl.envs.point_maze import PointMazeEnv
+
+    return PointMazeEnv(episode_length=episode_length)
+
+
+def _skill_tasks() -> dict[str, SkillTask]:
+    from qdrl.tasks import brax_qd as b
+
+    off = b.REWARD_OFFSETS
+    return {
+        "point_maze": SkillTask(_point_maze, "final", (-1.0, -1.0), (1.0, 1.0), 2.0 * math.sqrt(2.0)),
+        "ant_omni": SkillTask(_brax("ant", "xy", "no_forward"), "final", *b.OMNI_BOUNDS, off["ant_omni"]),
+        "ant_trap": SkillTask(_brax("anttrap", "xy"), "final", *b.TRAP_BOUNDS, off["ant_trap"]),
+        "ant_maze": SkillTask(_brax("antmaze", "xy"), "final", *b.MAZE_BOUNDS, b.MAZE_MAX_DISTANCE),
+        "halfcheetah_uni": SkillTask(
+            _brax("halfcheetah", "feet_contact"), "mean", (0.0, 0.0), (1.0, 1.0),
+            off["halfcheetah_uni"],
+        ),
+    }
+
+
+SKILL_TASKS: dict[str, SkillTask] = _skill_tasks()
+
+
+@dataclasses.dataclass(frozen=True)
+class SkillEnvConfig:
+    """The `[env]` section: which task, on which physics backend (brax tasks)."""
+
+    task: str = "ant_omni"  # a key of SKILL_TASKS
+    backend: Backend = "spring"  # brax physics pipeline (ignored by point_maze)
+    episode_length: int = 1000  # steps before truncation
+
+    def check(self) -> None:
+        if self.task not in SKILL_TASKS:
+            raise ValueError(
+                f"env.task: unknown task {self.task!r}; expected one of {sorted(SKILL_TASKS)}"
+            )
+        if self.episode_length <= 0:
+            raise ValueError(
+                f"env.episode_length: expected a positive integer, got {self.episode_length}"
+            )
+
+
+def _skill_module(
+    skills: DIAYNConfig | DADSConfig, obs_size: int, descriptor_size: int
+) -> RewardModule:
+    if isinstance(skills, DIAYNConfig):
+        return make_diayn_module(skills, obs_size, descriptor_size)
+    return make_dads_module(skills, obs_size, descriptor_size)
+
+
+class SkillRun(OffPolicyRun):
+    """DIAYN / DADS / SMERL: trainer chunks, then every skill evaluated into a passive archive."""
+
+    def __init__(
+        self,
+        spec: Mapping[str, Any],
+        exp: ExperimentConfig,
+        base: Literal["diayn", "dads"],
+        smerl: bool,
+    ) -> None:
+        env_cfg = build(SkillEnvConfig, spec.get("env", {}), "env")
+        task = SKILL_TASKS[env_cfg.task]
+        agent_cfg = build(SACConfig, spec.get("agent", {}), "agent")
+        train_cfg = build(TrainConfig, spec.get("train", {}), "train")
+        skills_cls = DIAYNConfig if base == "diayn" else DADSConfig
+        skills_data = dict(spec.get("skills", {}))
+        if smerl:
+            # SMERL optimises the task reward (weight 1 in Kumar et al. 2020, eq. 3).
+            skills_data.setdefault("extrinsic_scale", 1.0)
+        skills_cfg = build(skills_cls, skills_data, "skills")
+        archive_defaults = {
+            "descriptor": task.descriptor,
+            "low": list(task.low),
+            "high": list(task.high),
+            "qd_offset": -task.offset_per_step * env_cfg.episode_length,
+        }
+        archive_cfg = build(
+            ArchiveConfig, {**archive_defaults, **spec.get("archive", {})}, "archive"
+        )
+        self.sections: dict[str, Any] = {
+            "env": env_cfg,
+            "agent": agent_cfg,
+            "train": train_cfg,
+            "skills": skills_cfg,
+            "archive": archive_cfg,
+        }
+        gate = None
+        if smerl:
+            smerl_cfg = build(SMERLConfig, spec.get("smerl", {}), "smerl")
+            self.sections["smerl"] = smerl_cfg
+            gate = smerl_gate(smerl_cfg.target, smerl_cfg.margin)
+        k = skills_cfg.num_skills
+        if train_cfg.num_eval_envs % k:
+            raise ConfigError(
+                f"train.num_eval_envs: expected a multiple of skills.num_skills={k} (every "
+                f"skill is evaluated the same number of times), got {train_cfg.num_eval_envs}"
+            )
+        self.algorithm = exp.algorithm
+        self.task = env_cfg.task
+        self.archive_cfg = archive_cfg
+        self.skills_cfg = skills_cfg
+        self.base_env = task.make_env(env_cfg.episode_length, env_cfg.backend)
+        if len(archive_cfg.grid_shape) != self.base_env.descriptor_size:
+            raise ConfigError(
+                f"archive.grid_shape: expected {self.base_env.descriptor_size} entries (the state "
+                f"descriptor size of {env_cfg.task!r}), got {list(archive_cfg.grid_shape)}"
+            )
+        self.env = SkillEnv(self.base_env, k)
+        obs_size, desc_size = self.base_env.observation_size, self.base_env.descriptor_size
+        try:
+            sac = make_sac(agent_cfg, self.env.observation_size, self.env.action_size)
+            self.module = _skill_module(skills_cfg, obs_size, desc_size)
+        except ValueError as e:
+            msg = str(e)
+            raise ConfigError(msg if msg.startswith("skills.") else f"agent: {msg}") from e
+        self.agent: Agent = with_intrinsic_reward(
+            sac, self.module, skills_cfg.diversity_scale, skills_cfg.extrinsic_scale, gate
+        )
+        storage = off_policy.EPISODE_RETURNS if smerl else off_policy.REPLAY
+        self.trainer = make_trainer(self.env, self.agent, train_cfg, storage)
+        self.num_eval = train_cfg.num_eval_envs
+        self.num_chunks = train_cfg.num_chunks
+        self.progress_keys = ("eval_return", "coverage", *self._model_metric_names()[:1])
+        self._eval_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x5EED)
+        self._chunk: Any = None
+        self._last_eval: dict[str, Any] | None = None
+
+    def _model_metric_names(self) -> tuple[str, ...]:
+        if isinstance(self.skills_cfg, DIAYNConfig):
+            return ("eval_final_discriminator_accuracy", "eval_discriminator_accuracy")
+        return ("eval_final_dynamics_log_likelihood", "eval_dynamics_log_likelihood")
+
+    def evaluate(self, agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
+        """Episode i plays skill i % K deterministically; returns metrics and the trajectories."""
+        k = self.skills_cfg.num_skills
+        params = self.agent.policy_params(agent_state)
+        skills = jnp.arange(self.num_eval, dtype=jnp.int32) % k
+        run_key, model_key = jax.random.split(key)
+
+        def policy(obs: Array, _: PRNGKey) -> Array:
+            return self.agent.policy(params, append_skill(obs, skills, k))
+
+        ep = run_episodes(self.base_env, policy, run_key, self.num_eval)
+        desc = ep.final_desc if self.archive_cfg.descriptor == "final" else ep.mean_desc
+        desc = jnp.clip(desc, jnp.asarray(self.archive_cfg.low), jnp.asarray(self.archive_cfg.high))
+        # The skill model's metrics on the evaluation steps, as the training batches see them.
+        tr = ep.transitions
+        steps = tr.obs.shape[0]
+        per_step = jnp.broadcast_to(skills, (steps, self.num_eval))
+        tr = tr._replace(
+            obs=append_skill(tr.obs, per_step, k), next_obs=append_skill(tr.next_obs, per_step, k)
+        )
+        flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), tr)
+        _, info = self.module.reward(agent_state.aux, flat, model_key)
+        mask = ep.mask
+        last = jax.nn.one_hot(ep.lengths - 1, steps, axis=0) * mask  # (T, B) the last step
+        out: dict[str, Array] = {
+            "eval_return": jnp.mean(ep.returns),
+            "eval_return_std": jnp.std(ep.returns),
+            "eval_return_min": jnp.min(ep.returns),
+            "eval_length": jnp.mean(ep.lengths.astype(jnp.float32)),
+            "returns": ep.returns,
+            "descriptors": desc,
+            "trajectories": tr.next_desc,
+            "mask": mask,
+        }
+        for name, value in info.items():
+            v = value.reshape(mask.shape)
+            out[f"eval_{name}"] = jnp.sum(v * mask) / jnp.sum(mask)
+            out[f"eval_final_{name}"] = jnp.sum(v * last) / jnp.sum(last)
+        return out
+
+    def chunk(self, state: RLState) -> tuple[RLState, dict[str, Any]]:
+        """Train for one log interval, evaluate every skill, and offer the episodes to the archive."""
+        train, metrics = self.trainer.run_chunk(state.train)
+        ev = self.evaluate(train.agent, jax.random.fold_in(self._eval_key, train.env_steps))
+        archive = observe(state.archive, ev.pop("descriptors"), ev.pop("returns"))
+        out = dict(metrics)
+        out.update(ev)
+        out.update(qd_metrics(archive, self.archive_cfg.qd_offset))
+        return RLState(train, archive), out
+
+    def log_row(self, state: RLState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
+        """The row of `OffPolicyRun`; keeps the evaluation's trajectories for the skills plot."""
+        metrics = dict(chunk_metrics)
+        self._last_eval = jax.device_get(
+            {k: metrics.pop(k) for k in ("trajectories", "mask") if k in metrics}
+        )
+        return super().log_row(state, metrics, chunk)
+
+    def finish(self, state: RLState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
+        from qdrl import plotting
+
+        out = super().finish(state, rows, out_dir)
+        ev = self._last_eval
+        if ev is None:  # a resumed run with no chunk left: evaluate once more
+            ev = jax.device_get(
+                jax.jit(self.evaluate)(state.train.agent, jax.random.fold_in(self._eval_key, 0xF1))
+            )
+        cfg = self.archive_cfg
+        plotting.plot_skills(
+            np.asarray(ev["trajectories"]),
+            np.arange(self.num_eval) % self.skills_cfg.num_skills,
+            np.asarray(ev["mask"]),
+            out_dir / "plots" / "skills.png",
+            cfg.low,
+            cfg.high,
+            archive=jax.device_get(state.archive),
+            title=f"{self.algorithm} on {self.task}: skills and passive archive",
+            trajectories_are_positions=cfg.descriptor == "final",
+        )
+        return out
+
+
+def skill_trainer_builder(
+    algorithm: str,
+    hidden: tuple[int, ...] = (256, 256),
+    num_skills: int = 10,
+    smerl: SMERLConfig | None = None,
+) -> Callable[[Env, TrainConfig], off_policy.Trainer]:
+    """`(env, train_config) -> Trainer` of a skill-discovery `algorithm` with default settings.
+
+    SAC and the skill model both use `hidden`; for the throughput benchmark (`qdrl bench skills`).
+    """
+    if algorithm not in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
+        raise ValueError(f"unknown skill-discovery algorithm {algorithm!r}")
+    is_smerl = algorithm.startswith("smerl")
+    cls = DADSConfig if algorithm.endswith("dads") else DIAYNConfig
+
+    def build(env: Env, config: TrainConfig) -> off_policy.Trainer:
+        skill_env = SkillEnv(env, num_skills)
+        skills = cls(num_skills=num_skills, hidden=hidden, extrinsic_scale=1.0 if is_smerl else 0.0)
+        module = _skill_module(skills, env.observation_size, env.descriptor_size)
+        sac = make_sac(SACConfig(hidden=hidden), skill_env.observation_size, env.action_size)
+        s = smerl or SMERLConfig()
+        gate = smerl_gate(s.target, s.margin) if is_smerl else None
+        agent = with_intrinsic_reward(
+            sac, module, skills.diversity_scale, skills.extrinsic_scale, gate
+        )
+        storage = off_policy.EPISODE_RETURNS if is_smerl else off_policy.REPLAY
+        return make_trainer(skill_env, agent, config, storage)
+
+    return build
+
+
+def _register_skill_runs() -> None:
+    for name in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
+        base: Literal["diayn", "dads"] = "dads" if name.endswith("dads") else "diayn"
+        smerl = name.startswith("smerl")
+
+        def builder(
+            spec: Mapping[str, Any], exp: ExperimentConfig, base: Literal["diayn", "dads"] = base,
+            smerl: bool = smerl,
+        ) -> SkillRun:
+            return SkillRun(spec, exp, base, smerl)
+
+        register(name)(builder)
+
+
+_register_skill_runs()

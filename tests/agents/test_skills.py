@@ -1,0 +1,303 @@
+"""Skill discovery: DIAYN / DADS losses and rewards against hand-computed values, the SMERL gate,
+the trajectory buffer's episode returns, the skill-conditioned env, and a tiny training run."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from qdrl import buffers, off_policy
+from qdrl.agents.dads import (
+    DADSConfig,
+    RunningMoments,
+    dads_reward,
+    make_dads_module,
+    mixture_log_prob,
+    normalize,
+    update_moments,
+)
+from qdrl.agents.diayn import (
+    DIAYNConfig,
+    diayn_reward,
+    discriminator_loss,
+    make_diayn,
+    make_diayn_module,
+)
+from qdrl.agents.intrinsic import RewardModule, relabel, with_intrinsic_reward
+from qdrl.agents.sac import SACConfig, make_sac
+from qdrl.agents.smerl import SMERLConfig, make_smerl, smerl_gate
+from qdrl.envs.point_maze import PointMazeEnv
+from qdrl.envs.skills import SkillEnv, append_skill, skill_of, strip_skill
+from qdrl.off_policy import TrainConfig, make_trainer
+from qdrl.types import Transition
+
+K = 4
+
+
+def _transitions(n: int, skills: np.ndarray, desc: np.ndarray, next_desc: np.ndarray) -> Transition:
+    obs = append_skill(jnp.zeros((n, 3)), jnp.asarray(skills), K)
+    z = jnp.zeros((n,))
+    return Transition(
+        obs=obs, action=jnp.zeros((n, 2)), reward=jnp.arange(n, dtype=jnp.float32),
+        next_obs=obs, terminated=z, truncated=z,
+        desc=jnp.asarray(desc, jnp.float32), next_desc=jnp.asarray(next_desc, jnp.float32),
+    )
+
+
+# -- DIAYN ------------------------------------------------------------------------------
+
+
+def test_diayn_reward_and_loss_by_hand() -> None:
+    logits = jnp.array([[2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    skills = jnp.array([0, 3])
+    # log q(z|s) = 2 - log(e^2 + 3) for row 0, log(1/4) for row 1; r = log q + log 4.
+    log_q0 = 2.0 - math.log(math.exp(2.0) + 3.0)
+    expected = np.array([log_q0 + math.log(4.0), 0.0])
+    np.testing.assert_allclose(diayn_reward(logits, skills), expected, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(
+        discriminator_loss(logits, skills), -(log_q0 + math.log(0.25)) / 2.0, rtol=1e-6
+    )
+
+
+def test_diayn_module_learns_to_discriminate_positions() -> None:
+    # Skill i always ends at corner i: the discriminator must reach full accuracy and the
+    # reward must approach its maximum log K.
+    module = make_diayn_module(DIAYNConfig(num_skills=K, hidden=(32,), learning_rate=1e-2), 3, 2)
+    skills = np.arange(64) % K
+    corners = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], np.float32)[skills]
+    tr = _transitions(64, skills, np.zeros((64, 2)), corners)
+    state = module.init(jax.random.PRNGKey(0))
+    update = jax.jit(module.update)
+    for _ in range(200):
+        state, metrics = update(state, tr, jax.random.PRNGKey(1))
+    r, info = module.reward(state, tr, jax.random.PRNGKey(2))
+    assert float(jnp.mean(info["discriminator_accuracy"])) == 1.0
+    assert float(jnp.min(r)) > math.log(K) - 0.1
+    assert float(metrics["discriminator_loss"]) < 0.1
+
+
+def test_diayn_full_state_input_reads_obs_without_skill() -> None:
+    module = make_diayn_module(DIAYNConfig(num_skills=K, model_input="full", hidden=(8,)), 3, 2)
+    state = module.init(jax.random.PRNGKey(0))
+    assert state.params["mlp/~/linear_0"]["w"].shape == (3, 8)
+    tr = _transitions(5, np.arange(5) % K, np.zeros((5, 2)), np.zeros((5, 2)))
+    r, _ = module.reward(state, tr, jax.random.PRNGKey(0))
+    assert r.shape == (5,)
+
+
+# -- DADS -------------------------------------------------------------------------------
+
+
+def test_mixture_log_prob_by_hand() -> None:
+    # Two 1-D components, weights softmax([0, log 3]) = (1/4, 3/4), means 0 and 2, std 1 and 0.5.
+    logits = jnp.array([0.0, math.log(3.0)])
+    means = jnp.array([[0.0], [2.0]])
+    log_std = jnp.log(jnp.array([[1.0], [0.5]]))
+    x = jnp.array([1.0])
+
+    def normal(v: float, m: float, s: float) -> float:
+        return math.exp(-0.5 * ((v - m) / s) ** 2) / (s * math.sqrt(2 * math.pi))
+
+    expected = math.log(0.25 * normal(1.0, 0.0, 1.0) + 0.75 * normal(1.0, 2.0, 0.5))
+    np.testing.assert_allclose(mixture_log_prob(logits, means, log_std, x), expected, rtol=1e-6)
+
+
+def test_dads_reward_by_hand() -> None:
+    # q(delta|s,z) = 0.5; the alternatives give 0.5, 0.1, 0.1, 0.3 -> mean 0.25.
+    log_q = jnp.log(jnp.array([0.5]))
+    log_alt = jnp.log(jnp.array([[0.5, 0.1, 0.1, 0.3]]))
+    np.testing.assert_allclose(dads_reward(log_q, log_alt), [math.log(0.5 / 0.25)], rtol=1e-6)
+
+
+def test_running_moments_match_numpy() -> None:
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(1.0, 2.0, (50, 3)), rng.normal(-1.0, 0.5, (30, 3))
+    m = RunningMoments(jnp.zeros(3), jnp.ones(3), jnp.zeros(()))
+    m = update_moments(update_moments(m, jnp.asarray(a)), jnp.asarray(b))
+    both = np.concatenate([a, b])
+    np.testing.assert_allclose(m.mean, both.mean(0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(m.var, both.var(0), rtol=1e-4)
+    np.testing.assert_allclose(normalize(m, jnp.asarray(both)).std(0), 1.0, rtol=1e-3)
+
+
+def test_dads_module_learns_skill_dynamics() -> None:
+    # Skill i moves by 0.1 in direction i (right, up, left, down). Normalised (batch mean 0,
+    # std 0.1 / sqrt(2)), the four changes are sqrt(2) e_i. Once the fixed-variance model
+    # predicts them exactly, log q = log N(0; 0, I_2) = -log(2 pi), and the other skills' means
+    # lie at squared distance 4 (two neighbours) and 8 (the opposite one), so
+    # r = log 4 - log(1 + 2 e^-2 + e^-4).
+    cfg = DADSConfig(num_skills=K, hidden=(32,), learning_rate=1e-2, num_components=2)
+    module = make_dads_module(cfg, 3, 2)
+    skills = np.arange(64) % K
+    rng = np.random.default_rng(0)
+    desc = rng.uniform(-1, 1, (64, 2)).astype(np.float32)
+    steps = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], np.float32)[skills]
+    tr = _transitions(64, skills, desc, desc + 0.1 * steps)
+    state = module.init(jax.random.PRNGKey(0))
+    update = jax.jit(module.update)
+    _, info0 = module.reward(state, tr, jax.random.PRNGKey(1))
+    for _ in range(400):
+        state, _ = update(state, tr, jax.random.PRNGKey(1))
+    r, info = module.reward(state, tr, jax.random.PRNGKey(2))
+    log_likelihood = float(jnp.mean(info["dynamics_log_likelihood"]))
+    assert log_likelihood > float(jnp.mean(info0["dynamics_log_likelihood"]))
+    assert log_likelihood == pytest.approx(-math.log(2 * math.pi), abs=0.02)
+    expected = math.log(4.0) - math.log(1.0 + 2.0 * math.exp(-2.0) + math.exp(-4.0))
+    np.testing.assert_allclose(r, expected, atol=0.05)
+
+
+def test_dads_sampled_alternatives_and_omitted_dims() -> None:
+    cfg = DADSConfig(num_skills=K, hidden=(8,), num_alt_skills=16, omit_input_dims=(0,))
+    module = make_dads_module(cfg, 3, 2)
+    state = module.init(jax.random.PRNGKey(0))
+    assert state.params["mlp/~/linear_0"]["w"].shape == (1 + K, 8)  # x dropped from the input
+    tr = _transitions(6, np.arange(6) % K, np.zeros((6, 2)), np.ones((6, 2)))
+    r, _ = module.reward(state, tr, jax.random.PRNGKey(0))
+    assert r.shape == (6,) and bool(jnp.all(r <= math.log(16) + 1e-5))
+    with pytest.raises(ValueError, match=r"skills\.omit_input_dims"):
+        make_dads_module(DADSConfig(num_skills=K, omit_input_dims=(5,)), 3, 2)
+
+
+# -- SMERL, relabelling and the trajectory buffer ---------------------------------------
+
+
+def test_smerl_gate_on_constructed_batch() -> None:
+    gate = smerl_gate(target=100.0, margin=10.0)
+    returns = jnp.array([120.0, 90.0, 89.9, jnp.nan, -5.0])
+    np.testing.assert_array_equal(gate(returns), [1.0, 1.0, 0.0, 0.0, 0.0])
+    r = relabel(jnp.full(5, 2.0), jnp.full(5, 0.5), 4.0, 1.0, gate(returns))
+    np.testing.assert_allclose(r, [4.0, 4.0, 2.0, 2.0, 2.0])
+
+
+def test_intrinsic_agent_relabels_the_batch_sac_sees() -> None:
+    # A constant intrinsic reward of 3 and an agent that records the reward it gets.
+    seen = []
+
+    def agent_update(state, transitions, key):  # type: ignore[no-untyped-def]
+        seen.append(transitions.reward)
+        return state, {}
+
+    from qdrl.agents.base import Agent
+
+    inner = Agent(lambda k: 0, lambda s, o, k: o, lambda p, o: o, lambda s: s, agent_update)
+    module = RewardModule(
+        init=lambda k: jnp.zeros(()),
+        reward=lambda a, t, k: (jnp.full(t.reward.shape, 3.0), {}),
+        update=lambda a, t, k: (a + 1.0, {"aux_steps": a + 1.0}),
+    )
+    tr = _transitions(3, np.zeros(3, int), np.zeros((3, 2)), np.zeros((3, 2)))
+    agent = with_intrinsic_reward(inner, module, diversity_scale=2.0, extrinsic_scale=0.5,
+                                  gate=smerl_gate(0.0, 0.0))
+    state = agent.init(jax.random.PRNGKey(0))
+    state, metrics = agent.update(state, (tr, jnp.array([1.0, -1.0, jnp.nan])), jax.random.PRNGKey(0))
+    # reward = 0.5 * [0, 1, 2] + 2 * 3 * gate, gate = [1, 0, 0]
+    np.testing.assert_allclose(seen[0], [6.0, 0.5, 1.0])
+    assert float(state.aux) == 1.0 and float(metrics["gate_open"]) == pytest.approx(1 / 3)
+
+
+def test_trajectory_buffer_knows_episode_returns() -> None:
+    buf = buffers.trajectory_init({"t": jnp.zeros((), jnp.int32)}, capacity=16, num_envs=2)
+    # env 0: episodes of 2 steps with reward 1 each step -> return 2; env 1 one episode of 4.
+    for t in range(4):
+        done = jnp.array([t % 2 == 1, t == 3], jnp.float32)
+        ret = jnp.array([2.0 if t % 2 == 1 else jnp.nan, 40.0 if t == 3 else jnp.nan])
+        items = {"t": jnp.array([10 * t, 10 * t + 1], jnp.int32)}
+        buf = buffers.trajectory_insert(buf, items, done, ret)
+    # one more step: env 0's third episode is running
+    buf = buffers.trajectory_insert(buf, {"t": jnp.array([40, 41], jnp.int32)},
+                                    jnp.zeros(2), jnp.zeros(2))
+    items, returns = buffers.trajectory_sample(buf, jax.random.PRNGKey(0), 200)
+    by_item = dict(zip(np.asarray(items["t"]).tolist(), np.asarray(returns).tolist(), strict=True))
+    assert int(buf.size) == 10 and len(by_item) == 10
+    for t in range(4):
+        assert by_item[10 * t] == 2.0 and by_item[10 * t + 1] == 40.0
+    assert math.isnan(by_item[40]) and math.isnan(by_item[41])
+    assert int(buf.next_id) == 5  # 2 initial ids + 3 finished episodes
+
+
+def test_trajectory_buffer_stale_slot_reads_nan() -> None:
+    # A table of capacity + num_envs = 3 slots: env 1's episode outlives 3 episodes of env 0,
+    # whose ids reuse its slot; its transitions must then read NaN, not another's return.
+    buf = buffers.trajectory_init(jnp.zeros(()), capacity=2, num_envs=1)
+    buf = buf._replace(episode_ids=jnp.array([0]), next_id=jnp.array(1))
+    for t in range(4):
+        buf = buffers.trajectory_insert(buf, jnp.array([float(t)]), jnp.ones(1), jnp.array([t]))
+    # episode ids 0..3; id 3 uses slot 0 again (table 3): only ids 1..3 known, item 0 evicted
+    _, returns = buffers.trajectory_sample(buf, jax.random.PRNGKey(0), 50)
+    assert set(np.asarray(returns).tolist()) == {2.0, 3.0}
+
+
+# -- environment, loop, and a tiny run ----------------------------------------------------
+
+
+def test_skill_env_appends_a_fixed_skill_per_episode() -> None:
+    base = PointMazeEnv(episode_length=3)
+    env = SkillEnv(base, K)
+    assert env.observation_size == base.observation_size + K
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 64))
+    skills = skill_of(states.obs, K)
+    assert set(np.asarray(skills).tolist()) == set(range(K))
+    np.testing.assert_array_equal(strip_skill(states.obs, K), states.desc)
+    stepped = jax.vmap(env.step)(states, jnp.ones((64, 2)))
+    np.testing.assert_array_equal(skill_of(stepped.obs, K), skills)
+
+
+def test_default_storage_is_the_ring_buffer() -> None:
+    env = PointMazeEnv(episode_length=10)
+    sac = make_sac(SACConfig(hidden=(8,)), env.observation_size, env.action_size)
+    cfg = TrainConfig(total_env_steps=64, num_envs=4, batch_size=8, buffer_size=64,
+                      learning_starts=8, grad_steps_per_iter=1, eval_every=32, num_eval_envs=4)
+    a = make_trainer(env, sac, cfg)
+    b = make_trainer(env, sac, cfg, off_policy.REPLAY)
+    sa, _ = jax.jit(a.run_chunk)(a.init(jax.random.PRNGKey(0)))
+    sb, _ = jax.jit(b.run_chunk)(b.init(jax.random.PRNGKey(0)))
+    assert isinstance(sa.buffer, buffers.ReplayBuffer)
+    for x, y in zip(jax.tree.leaves(sa), jax.tree.leaves(sb), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("algo", ["diayn", "dads"])
+def test_smerl_trains_through_the_loop_with_episode_returns(algo: str) -> None:
+    base = PointMazeEnv(episode_length=10)
+    env = SkillEnv(base, K)
+    sac = make_sac(SACConfig(hidden=(16,)), env.observation_size, env.action_size)
+    skills = (DIAYNConfig if algo == "diayn" else DADSConfig)(
+        num_skills=K, hidden=(16,), extrinsic_scale=1.0
+    )
+    # Every return of the point maze in 10 steps is above -30: the gate is always open.
+    agent = make_smerl(sac, algo, skills, SMERLConfig(target=-20.0, margin=10.0), 2, 2)  # type: ignore[arg-type]
+    cfg = TrainConfig(total_env_steps=160, num_envs=4, batch_size=16, buffer_size=160,
+                      learning_starts=40, grad_steps_per_iter=1, eval_every=80, num_eval_envs=4)
+    trainer = make_trainer(env, agent, cfg, off_policy.EPISODE_RETURNS)
+    state, metrics = jax.jit(trainer.run_chunk)(trainer.init(jax.random.PRNGKey(0)))
+    assert isinstance(state.buffer, buffers.TrajectoryBuffer) and int(state.buffer.size) == 80
+    # 8 finished episodes per env... 80 steps / 4 envs = 20 steps = 2 episodes per env.
+    assert int(state.buffer.next_id) == 4 + 8
+    gate_open = float(metrics["gate_open"])
+    # the transitions of finished episodes pass the gate, the running ones read NaN
+    assert 0.0 < gate_open <= 1.0
+    assert np.isfinite(float(metrics["critic_loss"]))
+
+
+def test_diayn_tiny_run_discriminates_skills() -> None:
+    """DIAYN on the open point maze: the discriminator separates 4 skills well above chance."""
+    base = PointMazeEnv(episode_length=20, walls=())
+    env = SkillEnv(base, K)
+    sac = make_sac(SACConfig(hidden=(64, 64), learn_alpha=False, init_alpha=0.1),
+                   env.observation_size, env.action_size)
+    agent = make_diayn(sac, DIAYNConfig(num_skills=K, hidden=(32, 32), learning_rate=1e-3), 2, 2)
+    cfg = TrainConfig(total_env_steps=6_000, num_envs=8, batch_size=128, buffer_size=10_000,
+                      learning_starts=400, grad_steps_per_iter=8, eval_every=1_000,
+                      num_eval_envs=8)
+    trainer = make_trainer(env, agent, cfg)
+    run = jax.jit(trainer.run_chunk)
+    state = trainer.init(jax.random.PRNGKey(0))
+    accuracies = []
+    for _ in range(cfg.num_chunks):
+        state, metrics = run(state)
+        accuracies.append(float(metrics["discriminator_accuracy"]))
+    assert accuracies[-1] > 0.6, accuracies  # chance is 0.25

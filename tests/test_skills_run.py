@@ -1,0 +1,115 @@
+"""`qdrl run` for skill discovery: tiny runs per algorithm, the passive archive, specs, bad configs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from qdrl.config import ConfigError, load_toml
+from qdrl.experiment import build_run, run
+
+ROOT = Path(__file__).resolve().parents[1]
+SPECS = sorted(
+    p for pattern in ("diayn_*.toml", "dads_*.toml", "smerl_*.toml")
+    for p in (ROOT / "agents").glob(pattern)
+)
+
+
+def tiny_spec(algorithm: str) -> dict:  # type: ignore[type-arg]
+    spec = {
+        "experiment": {"algorithm": algorithm, "seed": 0},
+        "env": {"task": "point_maze", "episode_length": 20},
+        "agent": {"hidden": [16, 16]},
+        "train": {"total_env_steps": 640, "num_envs": 4, "batch_size": 32, "buffer_size": 1000,
+                  "learning_starts": 80, "grad_steps_per_iter": 2, "eval_every": 320,
+                  "num_eval_envs": 8},
+        "skills": {"num_skills": 4, "hidden": [16, 16]},
+        "archive": {"grid_shape": [8, 8]},
+        "log": {"progress": False},
+    }
+    if algorithm.startswith("smerl"):
+        spec["smerl"] = {"target": -30.0, "margin": 5.0}
+    return spec
+
+
+@pytest.mark.parametrize(
+    "algorithm",
+    [
+        "diayn",
+        "smerl_dads",
+        pytest.param("dads", marks=pytest.mark.slow),
+        pytest.param("smerl_diayn", marks=pytest.mark.slow),
+    ],
+)
+def test_tiny_run_fills_the_passive_archive(tmp_path: Path, algorithm: str) -> None:
+    summary = run(tiny_spec(algorithm), tmp_path)
+    assert summary["env_steps"] == 640
+    # 2 evaluations x 8 episodes offered to an 8x8 archive over [-1, 1]^2
+    assert 1 <= summary["num_elites"] <= 16
+    assert summary["coverage"] == pytest.approx(summary["num_elites"] / 64)
+    assert summary["qd_score"] > 0  # every return is above the task's QD offset
+    model = "discriminator_accuracy" if algorithm.endswith("diayn") else "dynamics_log_likelihood"
+    for key in (f"eval_{model}", f"eval_final_{model}", model, "intrinsic_reward", "critic_loss"):
+        assert summary[key] is not None, key
+    if algorithm.startswith("smerl"):
+        assert 0.0 <= summary["gate_open"] <= 1.0
+    assert (tmp_path / "plots" / "skills.png").stat().st_size > 0
+    assert (tmp_path / "plots" / "archive.png").exists()
+    assert json.loads((tmp_path / "summary.json").read_text())["algorithm"] == algorithm
+
+
+def test_every_skill_spec_is_a_known_algorithm_and_task() -> None:
+    assert len(SPECS) == 40
+    for path in SPECS:
+        spec = load_toml(path)
+        algorithm = spec["experiment"]["algorithm"]
+        assert path.stem.startswith(algorithm), path
+        assert path.stem[len(algorithm) + 1 :].removesuffix("_cpu") == spec["env"]["task"], path
+        assert spec["train"]["num_eval_envs"] % spec["skills"]["num_skills"] == 0, path
+
+
+@pytest.mark.parametrize("path", [p for p in SPECS if "point_maze" in p.stem], ids=lambda p: p.stem)
+def test_point_maze_specs_build(path: Path) -> None:
+    run_, _, _ = build_run(load_toml(path))
+    assert run_.task == "point_maze"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", [p for p in SPECS if "point_maze" not in p.stem], ids=lambda p: p.stem)
+def test_brax_specs_build(path: Path) -> None:
+    run_, _, _ = build_run(load_toml(path))
+    assert run_.env.observation_size > run_.base_env.observation_size
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "message"),
+    [
+        ("skills", "num_skills", 0, "skills.num_skills"),
+        ("skills", "model_input", "pixels", "skills.model_input"),
+        ("skills", "learning_rate", -1.0, "skills.learning_rate"),
+        ("train", "num_eval_envs", 6, "train.num_eval_envs"),
+        ("smerl", "margin", -1.0, "smerl.margin"),
+        ("env", "task", "ant_uni", "env.task"),
+    ],
+)
+def test_bad_config_names_the_key(section: str, key: str, value: object, message: str) -> None:
+    spec = tiny_spec("smerl_dads")
+    spec[section][key] = value
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+        build_run(spec)
+
+
+def test_archive_must_match_the_descriptor_size() -> None:
+    spec = tiny_spec("diayn")
+    spec["archive"] = {"grid_shape": [4, 4, 4], "low": [-1.0] * 3, "high": [1.0] * 3}
+    with pytest.raises(ConfigError, match=r"archive\.grid_shape: expected 2 entries"):
+        build_run(spec)
+
+
+def test_dads_bad_omitted_dim_names_the_key() -> None:
+    spec = tiny_spec("dads")
+    spec["skills"]["omit_input_dims"] = [2]  # the descriptor of point_maze has 2 dims
+    with pytest.raises(ConfigError, match=r"skills\.omit_input_dims"):
+        build_run(spec)
