@@ -135,9 +135,10 @@ checkpoint_every = 1
 """
 
 
-def test_tiny_me_pbt_run(tmp_path: Path) -> None:
+@pytest.mark.parametrize("algorithm", ["me_pbt_sac", "me_pbt_td3"])
+def test_tiny_me_pbt_run(tmp_path: Path, algorithm: str) -> None:
     spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC.replace('algorithm = "me_pbt_sac"', f'algorithm = "{algorithm}"'))
     summary = run_spec(spec, [], tmp_path / "out")
     assert summary["evaluations"] == 8 + 4 * 8
     assert summary["train_env_steps"] == 4 * 4 * 40
