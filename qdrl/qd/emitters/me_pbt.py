@@ -99,8 +99,9 @@ class MEPBTConfig:
     def check(self) -> None:
         for name in ("population_size", "ga_batch_size"):
             value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < (1 if name == "population_size" else 0):
-                raise ValueError(f"me_pbt.{name}: expected a positive integer, got {value!r}")
+            least = 1 if name == "population_size" else 0
+            if not isinstance(value, int) or isinstance(value, bool) or value < least:
+                raise ValueError(f"me_pbt.{name}: expected an integer >= {least}, got {value!r}")
         for name in ("iso_sigma", "line_sigma"):
             if getattr(self, name) < 0:
                 raise ValueError(f"me_pbt.{name}: expected a number >= 0, got {getattr(self, name)}")
