@@ -127,7 +127,7 @@ def _check_items(buffer: ReplayBuffer, items: PyTree) -> int:
     return batch
 
 
-def insert(buffer: ReplayBuffer, items: PyTree) -> ReplayBuffer:
+def insert(buffer: ReplayBuffer, items: PyTree, num_valid: Array | None = None) -> ReplayBuffer:
     """Writes a batch of items at `position`, wrapping around the ring.
 
     Item `i` of the batch goes to slot `(position + i) % capacity`. When the
@@ -138,6 +138,10 @@ def insert(buffer: ReplayBuffer, items: PyTree) -> ReplayBuffer:
       buffer: the buffer to write to.
       items: pytree with the storage's structure; each leaf has a leading batch
         axis `n` (static) followed by the item shape, with the storage dtype.
+      num_valid: when given (a traced integer in [0, n]), only the first
+        `num_valid` items are written and `position` / `size` advance by that
+        many: a static batch shape with a data-dependent count (e.g. the steps
+        of episodes that ended early). Needs `n <= capacity`.
 
     Returns:
       The updated buffer. Jittable; shapes are checked at trace time.
@@ -149,6 +153,8 @@ def insert(buffer: ReplayBuffer, items: PyTree) -> ReplayBuffer:
     if n == 0:
         return buffer
     capacity = buffer.capacity
+    if num_valid is not None:
+        return _insert_first(buffer, items, n, jnp.clip(num_valid, 0, n).astype(jnp.int32))
     kept = min(n, capacity)
     if kept < n:
         items = jax.tree_util.tree_map(lambda x: x[n - kept :], items)
@@ -163,6 +169,27 @@ def insert(buffer: ReplayBuffer, items: PyTree) -> ReplayBuffer:
         data=data,
         position=((buffer.position + n) % capacity).astype(jnp.int32),
         size=jnp.minimum(buffer.size + n, capacity).astype(jnp.int32),
+    )
+
+
+def _insert_first(buffer: ReplayBuffer, items: PyTree, n: int, num_valid: Array) -> ReplayBuffer:
+    """`insert` of the first `num_valid` of `n` items; the others' writes are dropped."""
+    capacity = buffer.capacity
+    if n > capacity:
+        raise ValueError(
+            f"insert with num_valid: expected a batch of at most the capacity ({capacity}) items, "
+            f"got {n}"
+        )
+    i = jnp.arange(n, dtype=jnp.int32)
+    # Slot `capacity` is out of range: scatter mode "drop" skips the invalid items.
+    idx = jnp.where(i < num_valid, (buffer.position + i) % capacity, capacity)
+    data = jax.tree_util.tree_map(
+        lambda store, x: store.at[idx].set(x, mode="drop"), buffer.data, items
+    )
+    return ReplayBuffer(
+        data=data,
+        position=((buffer.position + num_valid) % capacity).astype(jnp.int32),
+        size=jnp.minimum(buffer.size + num_valid, capacity).astype(jnp.int32),
     )
 
 

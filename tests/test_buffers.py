@@ -233,3 +233,36 @@ def test_init_rejects_empty_example_and_sample_rejects_bad_batch() -> None:
         buffers.sample(buffer, jax.random.PRNGKey(0), 0)
     with pytest.raises(ValueError, match="batch_size"):
         buffers.can_sample(buffer, 0)
+
+
+@settings(max_examples=30, deadline=None, database=None)
+@given(
+    capacity=st.integers(min_value=4, max_value=8),
+    counts=st.lists(st.integers(min_value=0, max_value=4), min_size=1, max_size=6),
+)
+def test_insert_num_valid_writes_only_the_first_items(capacity: int, counts: list[int]) -> None:
+    """A batch of 4 with a traced valid count acts like inserting only its first items."""
+    insert = jax.jit(buffers.insert)
+    buffer = buffers.init(EXAMPLE, capacity)
+    model: deque[int] = deque(maxlen=capacity)
+    nxt = 1
+    for k in counts:
+        batch = make_items(nxt, 4)  # items nxt .. nxt+3, of which the first k are valid
+        buffer = insert(buffer, batch, jnp.int32(k))
+        model.extend(range(nxt, nxt + k))
+        nxt += 4
+    written = len(model) if len(model) < capacity else capacity
+    total = sum(counts)
+    assert int(buffer.size) == min(total, capacity)
+    assert int(buffer.position) == total % capacity
+    x = np.asarray(buffer.data["x"])
+    assert sorted(x[:written].tolist()) == sorted(model)
+    # Item number j (1-based among the valid ones) sits in slot (j - 1) % capacity.
+    for j, item in enumerate(model, start=total - len(model) + 1):
+        assert x[(j - 1) % capacity] == item
+    np.testing.assert_array_equal(np.asarray(buffer.data["v"])[:, 0], x.astype(np.float32))
+
+
+def test_insert_num_valid_rejects_a_batch_larger_than_the_ring() -> None:
+    with pytest.raises(ValueError, match="at most the capacity"):
+        buffers.insert(buffers.init(EXAMPLE, 2), make_items(1, 3), jnp.int32(1))

@@ -156,34 +156,17 @@ def flatten_valid(transitions: Transition, mask: Array) -> tuple[Transition, Arr
 def insert_valid(buffer: ReplayBuffer, transitions: Transition, mask: Array) -> ReplayBuffer:
     """Insert only the transitions where `mask` is 1 (steps inside an episode) into the ring.
 
-    The number of valid items is traced, the batch shape is static: all T*n items
-    are written with `buffers.insert`, the invalid ones with the slot's current
-    content (so the ring is unchanged there), and `position` / `size` advance by
-    the valid count only. Needs T*n <= capacity.
+    The number of valid items is traced, the batch shape is static: the valid
+    items are moved first and `buffers.insert` writes that many. Needs T*n <= capacity.
     """
     items, num_valid = flatten_valid(transitions, mask)
     n = int(jax.tree.leaves(items)[0].shape[0])
-    capacity = buffer.capacity
-    if n > capacity:
+    if n > buffer.capacity:
         raise ValueError(
             f"replay_buffer_size: expected at least the {n} transitions of one evaluation batch "
-            f"(episode length x batch), got {capacity}"
+            f"(episode length x batch), got {buffer.capacity}"
         )
-    i = jnp.arange(n, dtype=jnp.int32)
-    slots = (buffer.position + i) % capacity
-    keep_new = i < num_valid
-    items = jax.tree.map(
-        lambda new, store: jnp.where(
-            keep_new.reshape((n,) + (1,) * (new.ndim - 1)), new, store[slots]
-        ),
-        items,
-        buffer.data,
-    )
-    written = buffers.insert(buffer, items)
-    return written._replace(
-        position=((buffer.position + num_valid) % capacity).astype(jnp.int32),
-        size=jnp.minimum(buffer.size + num_valid, capacity).astype(jnp.int32),
-    )
+    return buffers.insert(buffer, items, num_valid)
 
 
 def _concat(*trees: Genotype) -> Genotype:
