@@ -5,6 +5,13 @@
 
 (the second call adds seed 1 to the results of the first).
 
+    python benchmarks/pga_me_vs_map_elites.py --algorithms dcrl_me --tasks halfcheetah_uni \
+        --compare-with benchmarks/results/pga_me_vs_map_elites.json \
+        --out benchmarks/results/dcrl_me_vs_map_elites.json
+
+runs another algorithm's CPU spec (`agents/<algorithm>_<task>_cpu.toml`, here DCRL-ME,
+same sizing) and sets it beside the runs of `--compare-with` (copied, not re-run).
+
 Runs `agents/pga_me_<task>_cpu.toml` and `agents/map_elites_<task>_cpu.toml` through
 the experiment driver (`qdrl run`): the same task (spring, 100-step episodes,
 policies 64x64 tanh), the same CVT archive (256 cells) and the same number of
@@ -61,9 +68,29 @@ def run_one(algorithm: str, task: str, seed: int, iterations: int | None, log_ev
     }
 
 
+NAMES = {"pga_me": "PGA-ME", "map_elites": "MAP-Elites", "dcrl_me": "DCRL-ME"}
+
+
+def per_task_names(runs: list[dict[str, Any]], task: str) -> list[str]:
+    """Display names of the algorithms run on `task`, in the order they first appear."""
+    seen = dict.fromkeys(r["algorithm"] for r in runs if r["task"] == task)
+    return [NAMES.get(a, a) for a in seen]
+
+
+def comparison_title(names: list[str], task: str) -> str:
+    """"A vs B on task (CPU specs)"; with more algorithms, on two lines so that it fits the plot."""
+    if len(names) <= 2:
+        return f"{' vs '.join(names)} on {task} (CPU specs)"
+    return f"{', '.join(names)}\non {task} (CPU specs)"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--tasks", nargs="+", default=["halfcheetah_uni", "walker2d_uni"])
+    p.add_argument("--algorithms", nargs="+", default=list(ALGORITHMS),
+                   help="algorithms whose agents/<algorithm>_<task>_cpu.toml are run")
+    p.add_argument("--compare-with", default=None,
+                   help="a results file of this script whose runs of other algorithms are set beside")
     p.add_argument("--seeds", type=int, default=1)
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--iterations", type=int, default=None)
@@ -78,14 +105,23 @@ def main() -> None:
     out = Path(args.out)
     previous = json.loads(out.read_text()) if out.exists() else {}
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    # runs of other tasks or seeds stay, so seeds can be added one invocation at a time
+    algorithms = tuple(args.algorithms)
+    # runs of other tasks, seeds or algorithms stay, so seeds can be added one invocation at a time
     runs: list[dict[str, Any]] = [
-        r for r in previous.get("runs", []) if r["task"] not in args.tasks or r["seed"] not in seeds
+        r for r in previous.get("runs", [])
+        if r["task"] not in args.tasks or r["seed"] not in seeds or r["algorithm"] not in algorithms
     ]
+    if args.compare_with:
+        # runs copied from the reference file (marked "from") are replaced by its current ones
+        reference = json.loads(Path(args.compare_with).read_text())
+        runs = [r for r in runs if "from" not in r] + [
+            r | {"from": args.compare_with} for r in reference.get("runs", [])
+            if r["algorithm"] not in algorithms and r["task"] in args.tasks
+        ]
     for task in args.tasks:
         for seed in seeds:
             # alternate which algorithm goes first, so machine load drifts hit both alike
-            order = ALGORITHMS if seed % 2 == 0 else ALGORITHMS[::-1]
+            order = algorithms if seed % 2 == 0 else algorithms[::-1]
             for algorithm in order:
                 rec = run_one(algorithm, task, seed, args.iterations, args.log_every)
                 runs.append(rec)
@@ -94,25 +130,29 @@ def main() -> None:
     summary: dict[str, Any] = {}
     for task in sorted({r["task"] for r in runs}):
         per_task: dict[str, Any] = {}
-        for algorithm in ALGORITHMS:
+        present = sorted({r["algorithm"] for r in runs if r["task"] == task})
+        for algorithm in [*[a for a in ALGORITHMS if a in present], *[a for a in present if a not in ALGORITHMS]]:
             rs = [r for r in runs if r["task"] == task and r["algorithm"] == algorithm]
-            if rs:
-                per_task[algorithm] = {
-                    k: round(statistics.mean(r["summary"][k] for r in rs), 3)
-                    for k in ("evaluations", "qd_score", "coverage", "max_fitness", "run_s", "compile_s")
-                } | {"seeds": len(rs)}
-        if len(per_task) == 2:
-            per_task["qd_score_ratio"] = round(
-                per_task["pga_me"]["qd_score"] / per_task["map_elites"]["qd_score"], 3
-            )
+            per_task[algorithm] = {
+                k: round(statistics.mean(r["summary"][k] for r in rs), 3)
+                for k in ("evaluations", "qd_score", "coverage", "max_fitness", "run_s", "compile_s",
+                          "env_steps_per_s")
+            } | {"seeds": len(rs)}
+        if "map_elites" in per_task:
+            for algorithm in [a for a in per_task if a != "map_elites"]:
+                # "qd_score_ratio" is PGA-ME's (the key this file has always had)
+                key = "qd_score_ratio" if algorithm == "pga_me" else f"{algorithm}_qd_score_ratio"
+                per_task[key] = round(
+                    per_task[algorithm]["qd_score"] / per_task["map_elites"]["qd_score"], 3
+                )
         summary[task] = per_task
         for x_key, stem in (("evaluations", "evaluations"), ("wall_s", "wall_time")):
             curves = {
                 f"{r['algorithm']} seed {r['seed']}": r["rows"] for r in runs if r["task"] == task
             }
             plotting.plot_comparison(
-                curves, "qd_score", x_key, Path(args.plots) / f"pga_me_vs_map_elites_{task}_{stem}.png",
-                title=f"PGA-ME vs MAP-Elites on {task} (CPU specs)",
+                curves, "qd_score", x_key, Path(args.plots) / f"{Path(args.out).stem}_{task}_{stem}.png",
+                title=comparison_title(per_task_names(runs, task), task),
             )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": machine(), "summary": summary, "runs": runs}, indent=2) + "\n")

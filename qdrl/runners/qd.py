@@ -15,6 +15,7 @@ import numpy as np
 
 from qdrl.config import ConfigError, build, coerce
 from qdrl.experiment import ExperimentConfig, register
+from qdrl.qd.emitters.dcrl import DCRLConfig
 from qdrl.qd.emitters.pg import PGConfig
 
 if TYPE_CHECKING:
@@ -293,6 +294,18 @@ def policy_spec(task: Any, task_table: Mapping[str, Any]) -> tuple[Any, int, int
     return network, obs_size, action_size
 
 
+def check_replay_buffer(run: QDRun, section: str, capacity: int) -> None:
+    """Raises ConfigError unless one evaluated batch of episodes fits in the replay buffer."""
+    steps = run.sections["task"].get("episode_length")
+    for name, batch in (("emitter.batch_size", run.emitter_cfg.batch_size),
+                        ("qd.init_batch_size", run.qd_cfg.init_batch_size)):
+        if steps is not None and int(steps) * batch > capacity:
+            raise ConfigError(
+                f"{section}.replay_buffer_size: expected at least {name} x task.episode_length = "
+                f"{int(steps) * batch}, got {capacity}"
+            )
+
+
 class PGAMERun(QDRun):
     """PGA-ME (Nilsson & Cully 2021): the GA of `[emitter]` and a Q-PG emitter (`[pg]`)."""
 
@@ -304,14 +317,7 @@ class PGAMERun(QDRun):
         self.pg_cfg = build(self.pg_section, spec.get("pg", {}), "pg")
         self.sections["pg"] = self.pg_cfg
         self._policy = policy_spec(self._task, self.sections["task"])
-        steps = self.sections["task"].get("episode_length")
-        for name, batch in (("emitter.batch_size", self.emitter_cfg.batch_size),
-                            ("qd.init_batch_size", self.qd_cfg.init_batch_size)):
-            if steps is not None and int(steps) * batch > self.pg_cfg.replay_buffer_size:
-                raise ConfigError(
-                    f"pg.replay_buffer_size: expected at least {name} x task.episode_length = "
-                    f"{int(steps) * batch}, got {self.pg_cfg.replay_buffer_size}"
-                )
+        check_replay_buffer(self, "pg", self.pg_cfg.replay_buffer_size)
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         from qdrl.qd.emitters.pg import pga_me_emitter
@@ -397,6 +403,80 @@ def _pga_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> PGAMERun:
 @register("qdpg")
 def _qdpg(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDPGRun:
     return QDPGRun(spec, exp)
+
+
+@dataclasses.dataclass(frozen=True)
+class DCRLSection(DCRLConfig):
+    """The `[dcrl]` section of DCRL-ME: the DCRL emitter's TD3, similarity and offspring counts.
+
+    The GA of `[emitter]` makes the rest of `emitter.batch_size`. Without
+    `reward_offset` in the spec, the task's per-step reward offset is used
+    (-task.qd_offset / episode length: QDax's reward offsets, 9.231 on halfcheetah_uni).
+    """
+
+    # Offspring per iteration made by descriptor-conditioned PG steps on parents (QDax: 64).
+    dcrl_batch_size: int = 64
+    # Offspring per iteration made by injecting the DC actor at elites' descriptors (QDax: 64).
+    ai_batch_size: int = 64
+
+    def check(self, section: str = "dcrl") -> None:
+        super().check(section)
+        for name in ("dcrl_batch_size", "ai_batch_size"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+                raise ValueError(f"{section}.{name}: expected an integer >= 0, got {value!r}")
+        if self.dcrl_batch_size + self.ai_batch_size < 1:
+            raise ValueError(
+                f"{section}.dcrl_batch_size: expected dcrl_batch_size + ai_batch_size >= 1, got "
+                f"{self.dcrl_batch_size} + {self.ai_batch_size}"
+            )
+
+
+class DCRLMERun(QDRun):
+    """DCRL-ME (Faldor et al. 2024): the GA of `[emitter]` and the DCRL emitter (`[dcrl]`)."""
+
+    progress_keys = (*QDRun.progress_keys, "critic_steps")
+
+    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
+        super().__init__(spec, exp, default_kind="cvt")
+        data = dict(spec.get("dcrl", {}))
+        if "reward_offset" not in data and getattr(self._task, "env", None) is not None:
+            data["reward_offset"] = -float(self._task.qd_offset) / int(self._task.env.episode_length)
+        self.dcrl_cfg = build(DCRLSection, data, "dcrl")
+        self.sections["dcrl"] = self.dcrl_cfg
+        self._policy = policy_spec(self._task, self.sections["task"])
+        own = self.dcrl_cfg.dcrl_batch_size + self.dcrl_cfg.ai_batch_size
+        if own >= self.emitter_cfg.batch_size:
+            raise ConfigError(
+                f"dcrl.dcrl_batch_size: expected dcrl.dcrl_batch_size + dcrl.ai_batch_size below "
+                f"emitter.batch_size={self.emitter_cfg.batch_size} (the GA makes the rest), got "
+                f"{self.dcrl_cfg.dcrl_batch_size} + {self.dcrl_cfg.ai_batch_size}"
+            )
+        check_replay_buffer(self, "dcrl", self.dcrl_cfg.replay_buffer_size)
+
+    def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
+        from qdrl.qd.emitters.dcrl import dcrl_me_emitter
+
+        network, obs_size, action_size = self._policy
+        cfg = dataclasses.asdict(self.dcrl_cfg)
+        num_pg, num_ai = cfg.pop("dcrl_batch_size"), cfg.pop("ai_batch_size")
+        return dcrl_me_emitter(
+            self.emitter_cfg.batch_size, network, obs_size, action_size,
+            self._task.descriptor_low, self._task.descriptor_high, DCRLConfig(**cfg),
+            dcrl_batch_size=num_pg, ai_batch_size=num_ai, make_ga=make_ga,
+        )
+
+    def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
+        row = super().log_row(state, chunk_metrics, chunk)
+        dcrl_state = state.emitter_state[0]  # the DCRL emitter's (first in the batch)
+        row["critic_steps"] = float(dcrl_state.td3.steps)
+        row["buffer_size"] = float(dcrl_state.buffer.size)
+        return row
+
+
+@register("dcrl_me")
+def _dcrl_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> DCRLMERun:
+    return DCRLMERun(spec, exp)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,11 @@ acts in environment i of a batch, through the one rollout loop of qdrl
 episode ended are masked), the descriptor is computed from the trajectory of
 state descriptors (its last value or its mean over the episode), and the
 transitions are handed back in `extras["transitions"]` (with `extras["mask"]`)
-for actor-critic emitters to store in a replay buffer.
+for actor-critic emitters to store in a replay buffer, with the episodes'
+descriptors in `extras["descriptors"]` (the same as `Evaluation.descriptors`, but
+an extra: `MultiEmitter` hands extras whole to every sub-emitter, so an emitter
+that labels every stored transition with its episode's descriptor, DCRL-ME's,
+sees all of them and not only its own slice).
 """
 
 from __future__ import annotations
@@ -87,7 +91,11 @@ def policy_scoring_fn(
         return Evaluation(
             fitnesses=episodes.returns.astype(jnp.float32),
             descriptors=desc.astype(jnp.float32),
-            extras={"transitions": episodes.transitions, "mask": episodes.mask},
+            extras={
+                "transitions": episodes.transitions,
+                "mask": episodes.mask,
+                "descriptors": desc.astype(jnp.float32),
+            },
             env_steps=jnp.sum(episodes.lengths).astype(jnp.int32),
         )
 

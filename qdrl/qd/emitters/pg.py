@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol, TypeVar
 
 import haiku as hk
 import jax
@@ -40,7 +40,9 @@ from qdrl.buffers import ReplayBuffer
 from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.emitters.multi import MultiEmitter, split_batch
-from qdrl.types import Array, Genotype, Params, PRNGKey, Transition
+from qdrl.types import Array, Genotype, Params, PRNGKey, PyTree, Transition
+
+Items = TypeVar("Items")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -145,15 +147,18 @@ class PGEmitterState(NamedTuple):
     relabel: Any  # None for Q-PG
 
 
-def flatten_valid(transitions: Transition, mask: Array) -> tuple[Transition, Array]:
-    """(T, n, ...) transitions and (T, n) mask as (T*n, ...) items, valid ones first, and their count."""
+def flatten_valid(transitions: Items, mask: Array) -> tuple[Items, Array]:
+    """(T, n, ...) transitions and (T, n) mask as (T*n, ...) items, valid ones first, and their count.
+
+    `transitions` is any pytree of (T, n, ...) leaves (a `Transition`, or one with labels).
+    """
     flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), transitions)
     valid = mask.reshape(-1) > 0
     order = jnp.argsort(~valid, stable=True)
     return jax.tree.map(lambda x: x[order], flat), jnp.sum(valid).astype(jnp.int32)
 
 
-def insert_valid(buffer: ReplayBuffer, transitions: Transition, mask: Array) -> ReplayBuffer:
+def insert_valid(buffer: ReplayBuffer, transitions: PyTree, mask: Array) -> ReplayBuffer:
     """Insert only the transitions where `mask` is 1 (steps inside an episode) into the ring.
 
     The number of valid items is traced, the batch shape is static: the valid
