@@ -491,6 +491,9 @@ class ESSection:
     objective: Literal["fitness", "novelty", "explore_exploit"] = "explore_exploit"
     novelty_neighbours: int = 10  # k of the k-nearest-neighbour novelty
     archive_size: int = 10_000  # slots of the novelty archive of descriptors
+    exploit_num_cells: int = 2  # restarts for fitness draw among this many fittest elites
+    explore_num_cells: int = 5  # restarts for novelty draw among this many most novel elites
+    last_updated_size: int = 5  # cells last improved by the emitter, a second pool for exploit
 
     def check(self) -> None:
         if self.population_size < 2 or self.population_size % 2:
@@ -500,7 +503,8 @@ class ESSection:
                 raise ValueError(f"es.{name}: expected a number > 0, got {getattr(self, name)}")
         if self.l2_coefficient < 0:
             raise ValueError(f"es.l2_coefficient: expected a number >= 0, got {self.l2_coefficient}")
-        for name in ("num_optimizer_steps", "novelty_neighbours", "archive_size"):
+        for name in ("num_optimizer_steps", "novelty_neighbours", "archive_size",
+                     "exploit_num_cells", "explore_num_cells", "last_updated_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"es.{name}: expected a positive integer, got {getattr(self, name)}")
 
@@ -524,7 +528,8 @@ class MEESRun(QDRun):
         return ESEmitter(
             c.population_size, self._task.example_genotype(), c.sigma, c.learning_rate,
             c.l2_coefficient, c.num_optimizer_steps, c.objective, self._task.descriptor_size,
-            c.novelty_neighbours, c.archive_size,
+            c.novelty_neighbours, c.archive_size, exploit_num_cells=c.exploit_num_cells,
+            explore_num_cells=c.explore_num_cells, last_updated_size=c.last_updated_size,
         )
 
 

@@ -15,8 +15,10 @@ from qdrl.qd.emitters.es import ESEmitter, centred_ranks, es_gradient
 
 
 class FixedRepertoire:
-    def __init__(self, genotypes: jax.Array) -> None:
+    def __init__(self, genotypes: jax.Array, fitnesses: jax.Array | None = None) -> None:
         self.genotypes = genotypes
+        self.fitnesses = jnp.zeros(genotypes.shape[0]) if fitnesses is None else fitnesses
+        self.descriptors = genotypes[:, :2]
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         del key
@@ -84,6 +86,39 @@ def test_es_restarts_from_an_elite_and_explore_exploit_alternates() -> None:
     assert modes == [(1, 0, False), (0, 1, True), (1, 1, True), (0, 2, False)]
     np.testing.assert_array_equal(np.asarray(state.centre), np.full(3, 7.0))  # restarted from an elite
     assert int(state.archive.size) > 0
+
+
+def test_restart_draws_the_fittest_the_recent_or_the_most_novel_elites() -> None:
+    """ME-ES's biased restart: top-2 fitness (whole repertoire or recent cells), top-5 novelty."""
+    em = ESEmitter(4, jnp.zeros(3), descriptor_size=2, archive_size=64, novelty_neighbours=1)
+    # 8 cells; cell 7 empty. Fitness ranks: cells 3 and 5 best; descriptors along a line.
+    genotypes = jnp.stack([jnp.array([float(i), 0.0, 0.0]) for i in range(8)])
+    fitnesses = jnp.array([0.0, 1.0, 2.0, 9.0, 3.0, 8.0, 4.0, -jnp.inf])
+    repertoire = FixedRepertoire(genotypes, fitnesses)
+    # The archive has seen descriptors near cells 0..1: cells 2..6 are the most novel filled ones.
+    archive = em.init(jax.random.PRNGKey(0), repertoire,  # type: ignore[arg-type]
+                      evaluate(genotypes[:2], jnp.zeros(3)), genotypes[:2]).archive
+    pick = jax.jit(lambda recent, phase, k: em.restart_cell(repertoire, archive, recent, phase, k))  # type: ignore[arg-type]
+    no_recent = jnp.full((5,), -1, jnp.int32)
+    keys = jax.random.split(jax.random.PRNGKey(1), 200)
+    exploit = {int(pick(no_recent, jnp.asarray(False), k)) for k in keys}
+    assert exploit == {3, 5}
+    recent = jnp.array([1, 2, 6, -1, -1], jnp.int32)  # fittest recent cells: 6 and 2
+    drawn = [int(pick(recent, jnp.asarray(False), k)) for k in keys]
+    assert set(drawn) == {2, 3, 5, 6}
+    assert 0.35 < np.mean([c in (2, 6) for c in drawn]) < 0.65  # half of the time from the recent pool
+    explore = {int(pick(no_recent, jnp.asarray(True), k)) for k in keys}
+    assert explore == {2, 3, 4, 5, 6}
+
+
+def test_recent_cells_keep_the_last_improved_ones() -> None:
+    from qdrl.qd.emitters.es import _last_improved
+
+    recent = jnp.array([4, 9, -1], jnp.int32)
+    out = _last_improved(recent, jnp.array([-1, 7, -1, 2], jnp.int32))
+    assert sorted(np.asarray(out).tolist()) == [2, 7, 9]
+    out = _last_improved(jnp.full((3,), -1, jnp.int32), jnp.array([5, -1], jnp.int32))
+    assert sorted(np.asarray(out).tolist()) == [-1, -1, 5]
 
 
 def test_es_emitter_rejects_an_odd_population() -> None:

@@ -14,8 +14,12 @@ then takes an Adam step on theta (ascent) with L2 decay. The score is the
 fitness ("fitness"), the novelty of the descriptor against an archive of the
 descriptors seen so far ("novelty", ME-ES's ME-NS-ES), or one of the two,
 alternating at every restart ("explore_exploit", ME-ES). Every
-`num_optimizer_steps` updates theta restarts from an elite drawn from the
-repertoire (uniformly; ME-ES biases the draw, which is left out here).
+`num_optimizer_steps` updates theta restarts from an elite, drawn as ME-ES
+draws it: for a fitness phase, uniformly among the `exploit_num_cells` fittest
+elites, of the whole repertoire or (half of the time) of the
+`last_updated_size` cells this emitter last improved; for a novelty phase,
+uniformly among the `explore_num_cells` elites whose descriptors are the most
+novel against the archive.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ class ESState(NamedTuple):
     generation: Array  # int32 updates since the last restart
     restarts: Array  # int32 restarts so far (explore-exploit alternates on it)
     archive: DescriptorArchive
+    recent: Array  # (last_updated_size,) int32 cells this emitter last improved, -1 for none
 
 
 def centred_ranks(scores: Array) -> Array:
@@ -81,6 +86,11 @@ class ESEmitter:
     novelty_neighbours: int = 10
     archive_size: int = 10_000
     archive_threshold: float = 0.0
+    # Restart draws: among the fittest elites (exploit), the most novel ones (explore),
+    # and the cells last improved by this emitter (ME-ES: 2, 5, 5).
+    exploit_num_cells: int = 2
+    explore_num_cells: int = 5
+    last_updated_size: int = 5
     batch_size: int = dataclasses.field(init=False)
     unravel: Callable[[Array], Genotype] = dataclasses.field(init=False)
 
@@ -92,8 +102,9 @@ class ESEmitter:
                 raise ValueError(f"{name}: expected a number > 0, got {getattr(self, name)}")
         if self.l2_coefficient < 0:
             raise ValueError(f"l2_coefficient: expected a number >= 0, got {self.l2_coefficient}")
-        if self.num_optimizer_steps < 1:
-            raise ValueError(f"num_optimizer_steps: expected a positive integer, got {self.num_optimizer_steps}")
+        for name in ("num_optimizer_steps", "exploit_num_cells", "explore_num_cells", "last_updated_size"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise ValueError(f"{name}: expected a positive integer, got {getattr(self, name)!r}")
         if self.objective not in ("fitness", "novelty", "explore_exploit"):
             raise ValueError(
                 f"objective: expected 'fitness', 'novelty' or 'explore_exploit', got {self.objective!r}"
@@ -105,7 +116,7 @@ class ESEmitter:
         return jax.vmap(lambda g: ravel_pytree(g)[0])(genotypes)
 
     def _restart(
-        self, centre: Array, key: PRNGKey, archive: DescriptorArchive, restarts: Array
+        self, centre: Array, key: PRNGKey, archive: DescriptorArchive, restarts: Array, recent: Array
     ) -> ESState:
         m = self.population_size // 2
         return ESState(
@@ -115,7 +126,33 @@ class ESEmitter:
             generation=jnp.zeros((), jnp.int32),
             restarts=restarts,
             archive=archive,
+            recent=recent,
         )
+
+    def restart_cell(
+        self, repertoire: Repertoire, archive: DescriptorArchive, recent: Array, novelty_phase: Array,
+        key: PRNGKey,
+    ) -> Array:
+        """The cell whose elite the next search centre starts from (ME-ES's biased draw).
+
+        Explore (`novelty_phase`): uniform among the `explore_num_cells` filled cells
+        whose descriptors are most novel against `archive`. Exploit: uniform among
+        the `exploit_num_cells` fittest elites of the repertoire, or, with
+        probability 1/2, of the `recent` cells (when any is filled).
+        """
+        fitnesses = repertoire.fitnesses
+        filled = fitnesses > -jnp.inf
+        coin_key, best_key, recent_key, novel_key = jax.random.split(key, 4)
+        best = _uniform_top(best_key, jnp.arange(fitnesses.shape[0]), fitnesses, self.exploit_num_cells)
+        recent_fit = jnp.where(recent >= 0, fitnesses[jnp.maximum(recent, 0)], -jnp.inf)
+        from_recent = _uniform_top(recent_key, recent, recent_fit, self.exploit_num_cells)
+        use_recent = (jax.random.uniform(coin_key) < 0.5) & jnp.any(recent_fit > -jnp.inf)
+        exploit = jnp.where(use_recent, from_recent, best)
+        scores = jnp.where(
+            filled, novelty(archive, repertoire.descriptors, self.novelty_neighbours), -jnp.inf
+        )
+        explore = _uniform_top(novel_key, jnp.arange(fitnesses.shape[0]), scores, self.explore_num_cells)
+        return jnp.where(novelty_phase, explore, exploit).astype(jnp.int32)
 
     def init(
         self, key: PRNGKey, repertoire: Repertoire, evaluation: Evaluation, genotypes: Genotype
@@ -127,7 +164,8 @@ class ESEmitter:
             init_archive(self.archive_size, self.descriptor_size), evaluation.descriptors,
             self.archive_threshold,
         )
-        return self._restart(centre, noise_key, archive, jnp.zeros((), jnp.int32))
+        recent = jnp.full((self.last_updated_size,), -1, jnp.int32)
+        return self._restart(centre, noise_key, archive, jnp.zeros((), jnp.int32), recent)
 
     def emit(self, state: ESState, repertoire: Repertoire, key: PRNGKey) -> Genotype:
         """theta + sigma eps_i, theta - sigma eps_i, then theta."""
@@ -140,11 +178,14 @@ class ESEmitter:
 
     def use_novelty(self, state: ESState) -> Array:
         """Whether this generation's score is novelty (bool scalar)."""
+        return self._novelty_phase(state.restarts)
+
+    def _novelty_phase(self, restarts: Array) -> Array:
         if self.objective == "fitness":
             return jnp.asarray(False)
         if self.objective == "novelty":
             return jnp.asarray(True)
-        return state.restarts % 2 == 1  # exploit first, then explore, alternating
+        return restarts % 2 == 1  # exploit first, then explore, alternating
 
     def update(
         self,
@@ -156,7 +197,7 @@ class ESEmitter:
         key: PRNGKey,
     ) -> ESState:
         """ES step from the perturbations' scores; restart from an elite every `num_optimizer_steps`."""
-        del genotypes, added
+        del genotypes
         n = self.population_size
         fit = evaluation.fitnesses[:n]
         # A failed evaluation (NaN) ranks last.
@@ -166,6 +207,7 @@ class ESEmitter:
         grad = es_gradient(state.noise, scores, self.sigma) - self.l2_coefficient * state.centre
         centre, opt_state = adam_step(state.centre, state.opt_state, -grad, self.learning_rate)
         archive = add_to_archive(state.archive, evaluation.descriptors, self.archive_threshold)
+        recent = _last_improved(state.recent, jnp.where(added.added, added.cell, -1))
         noise_key, pick_key, restart_key = jax.random.split(key, 3)
         stepped = ESState(
             centre=centre,
@@ -174,13 +216,32 @@ class ESEmitter:
             generation=state.generation + 1,
             restarts=state.restarts,
             archive=archive,
+            recent=recent,
         )
-        fresh = self._restart(
-            self._flat(repertoire.sample(pick_key, 1))[0], restart_key, archive,
-            state.restarts + 1,
-        )
+        restarts = state.restarts + 1
+        cell = self.restart_cell(repertoire, archive, recent, self._novelty_phase(restarts), pick_key)
+        elite = jax.tree.map(lambda x: x[cell], repertoire.genotypes)
+        fresh = self._restart(ravel_pytree(elite)[0], restart_key, archive, restarts, recent)
         restart = stepped.generation >= self.num_optimizer_steps
         return jax.tree.map(lambda a, b: jnp.where(restart, a, b), fresh, stepped)
+
+
+def _uniform_top(key: PRNGKey, cells: Array, scores: Array, k: int) -> Array:
+    """One of `cells`, uniformly among the (at most) `k` with the highest finite `scores`."""
+    k = min(k, scores.shape[0])
+    top, idx = jax.lax.top_k(scores, k)
+    logits = jnp.where(top > -jnp.inf, 0.0, -jnp.inf)
+    # With no finite score every logit is -inf; pick the first (callers check emptiness).
+    logits = jnp.where(jnp.any(top > -jnp.inf), logits, jnp.zeros_like(logits))
+    return cells[idx[jax.random.categorical(key, logits)]]
+
+
+def _last_improved(recent: Array, cells: Array) -> Array:
+    """`recent` (L,) followed by the valid (>= 0) entries of `cells`, keeping the last L valid ones."""
+    combined = jnp.concatenate([recent, cells.astype(jnp.int32)])
+    order = jnp.where(combined >= 0, jnp.arange(combined.shape[0]), -1)
+    kept, idx = jax.lax.top_k(order, recent.shape[0])
+    return jnp.where(kept >= 0, combined[idx], -1).astype(jnp.int32)
 
 
 __all__ = ["ESEmitter", "ESState", "centred_ranks", "es_gradient"]
