@@ -390,8 +390,12 @@ def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[
     """DIAYN, DADS, SMERL (on each) next to SAC: same env, networks, batch and update ratio.
 
     point_maze (and ant, spring, unless `quick`): 16 envs, 16 updates of batch 256 per
-    iteration, (256, 256) networks, 10 skills; the skill models are (256, 256) too.
+    iteration, (256, 256) networks, 10 skills; the skill models are (256, 256) too, with
+    their configs' other defaults (DADS: the exact marginal over the 10 skills, the model
+    trained on one update in 8).
     """
+    from qdrl.agents.dads import DADSConfig
+    from qdrl.agents.diayn import DIAYNConfig
     from qdrl.runners.skills import skill_trainer_builder
 
     algorithms: tuple[str, ...] = ("sac", "diayn", "dads", "smerl_diayn", "smerl_dads")
@@ -411,4 +415,9 @@ def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[
     sac = {r["env"]: r["env_steps_per_s"] for r in records if r["algorithm"] == "sac"}
     for r in records:
         r["relative_to_sac"] = round(r["env_steps_per_s"] / sac[r["env"]], 3)
+        if r["algorithm"] != "sac":  # the skill model's schedule and (DADS) alternatives
+            skills = (DADSConfig if r["algorithm"].endswith("dads") else DIAYNConfig)()
+            r["model_update_every"] = skills.model_update_every
+            if isinstance(skills, DADSConfig):
+                r["num_alt_skills"] = skills.num_alt_skills
     return records

@@ -169,7 +169,8 @@ def make_trainer(
             return agent.update(s, xs[0], xs[1])
 
         s, metrics = jax.lax.scan(one, agent_state, (batches, jax.random.split(update_key, n)))
-        return s, jax.tree.map(jnp.mean, metrics)
+        # nan marks a metric an update did not produce (a model trained every k-th update).
+        return s, jax.tree.map(jnp.nanmean, metrics)
 
     def iteration(ts: TrainState, _: None) -> tuple[TrainState, dict[str, Array]]:
         key, act_key, update_key = jax.random.split(ts.key, 3)

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from qdrl import checkpoint
 from qdrl.config import ConfigError, load_toml
 from qdrl.experiment import build_run, run
 
@@ -113,3 +116,39 @@ def test_dads_bad_omitted_dim_names_the_key() -> None:
     spec["skills"]["omit_input_dims"] = [2]  # the descriptor of point_maze has 2 dims
     with pytest.raises(ConfigError, match=r"skills\.omit_input_dims"):
         build_run(spec)
+
+
+def test_smerl_run_resumed_after_its_first_checkpoint_matches_an_uninterrupted_run(
+    tmp_path: Path,
+) -> None:
+    # SMERL on DIAYN carries the most state: SAC, the discriminator, the trajectory buffer
+    # (ring, episode ids, return table), the environments mid-episode and the archive.
+    spec = tiny_spec("smerl_diayn")  # 2 log points of 320 steps, a checkpoint after each
+    spec["log"]["plots"] = False
+    full = run(spec, tmp_path / "full")
+
+    # What a run stopped after its first checkpoint leaves: that checkpoint, its config
+    # and one row of metrics (checkpoints are complete once their directory exists).
+    out = tmp_path / "stopped"
+    shutil.copytree(tmp_path / "full", out)
+    shutil.rmtree(checkpoint.latest(out / "checkpoints"))  # type: ignore[arg-type]
+    (out / "summary.json").unlink()
+    rows = (out / "metrics.csv").read_text().splitlines()
+    (out / "metrics.csv").write_text("\n".join(rows[:2]) + "\n")
+    assert checkpoint.step_of(checkpoint.latest(out / "checkpoints")) == 320  # type: ignore[arg-type]
+
+    resumed = run(spec, out, resume=True)
+    timing = {"wall_s", "compile_s", "run_s", "env_steps_per_s"}
+    keys = sorted(k for k, v in full.items() if isinstance(v, int | float) and k not in timing)
+    assert {"eval_return", "coverage", "gate_open", "discriminator_loss", "train_return"} <= set(keys)
+    for key in keys:
+        assert resumed[key] == full[key], key
+    # The final states, parameters and buffers included, are bit-identical.
+    final = checkpoint.latest(tmp_path / "full" / "checkpoints")
+    assert final is not None and checkpoint.step_of(final) == 640
+    with np.load(final / "state.npz") as a, \
+            np.load(out / "checkpoints" / final.name / "state.npz") as b:
+        assert a.files == b.files and len(a.files) > 20
+        for name in a.files:
+            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    assert len((out / "metrics.csv").read_text().splitlines()) == 1 + 2

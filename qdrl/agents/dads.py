@@ -13,7 +13,12 @@ Gaussians over the normalised delta (targets standardised with running moments),
 diagonal, with fixed unit variance by default (the paper's `fix_variance`); its
 inputs may leave out some dimensions of s (`omit_input_dims`: the paper's "x-y
 prior" removes the x-y coordinates from the model's input). It is trained by
-maximum likelihood with its own Adam, in the same update step.
+maximum likelihood with its own Adam inside the agent's update, on one update in
+`model_update_every` (8: the authors' code trains it 8 steps per 64 SAC steps).
+
+The reward needs the model at every state of the batch for every skill compared;
+`skill_dynamics_outputs` evaluates them in one batched pass whose first layer is
+shared by all skills of a state (see there).
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ from qdrl.agents.intrinsic import (
     SkillModelConfig,
     check_field,
     is_positive_int,
-    with_intrinsic_reward,
+    with_skill_model,
 )
 from qdrl.envs.skills import skill_of, strip_skill
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
@@ -52,11 +57,14 @@ class DADSConfig(SkillModelConfig):
 
     Defaults from Sharma et al. 2020 (appendix): a skill-dynamics network of two
     hidden layers of 512 units, a mixture of 4 experts with fixed variance,
-    Adam 3e-4, normalised targets; pure skill discovery (no task reward).
+    Adam 3e-4, normalised targets; pure skill discovery (no task reward). The model
+    takes one step per 8 agent updates, as in the authors' code (8 skill-dynamics
+    steps per 64 SAC steps for Ant, 16 per 128 for Humanoid).
     """
 
     num_skills: int = 10
     hidden: tuple[int, ...] = (512, 512)
+    model_update_every: int = 8
     # Mixture components ("experts") of the Gaussian mixture over delta.
     num_components: int = 4
     # L, alternative skills drawn from the prior per transition; 0: all K skills.
@@ -147,6 +155,11 @@ def dads_reward(log_q: Array, log_q_alt: Array) -> Array:
     return log_q - jax.nn.logsumexp(log_q_alt, axis=-1) + math.log(num_alt)
 
 
+def _bounded_log_std(raw: Array) -> Array:
+    """Squashes a raw output into [LOG_STD_MIN, LOG_STD_MAX] (the learned log standard deviation)."""
+    return LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (jnp.tanh(raw) + 1.0)
+
+
 def skill_dynamics_network(
     descriptor_size: int,
     num_components: int,
@@ -154,7 +167,11 @@ def skill_dynamics_network(
     act: str,
     learn_variance: bool,
 ) -> hk.Transformed:
-    """(s, one_hot z) -> (logits (..., M), means (..., M, D), log_std (..., M, D))."""
+    """(s, one_hot z) -> (logits (..., M), means (..., M, D), log_std (..., M, D)).
+
+    The definition of the model (and its parameters); `skill_dynamics_outputs` evaluates
+    the same function for many skills per state at a lower cost.
+    """
     d, m = descriptor_size, num_components
 
     def forward(s: Array, z: Array) -> tuple[Array, Array, Array]:
@@ -165,12 +182,59 @@ def skill_dynamics_network(
         means = hk.Linear(m * d, name="means")(h).reshape((*h.shape[:-1], m, d))
         if learn_variance:
             raw = hk.Linear(m * d, name="log_std")(h).reshape((*h.shape[:-1], m, d))
-            log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (jnp.tanh(raw) + 1.0)
+            log_std = _bounded_log_std(raw)
         else:
             log_std = jnp.zeros_like(means)
         return logits, means, log_std
 
     return hk.without_apply_rng(hk.transform(forward))
+
+
+def skill_dynamics_outputs(
+    params: Params, s: Array, skills: Array | None, act: str = "relu"
+) -> tuple[Array, Array, Array]:
+    """`skill_dynamics_network`'s outputs at the states `s` for L skills each, in one batched pass.
+
+    The first layer maps [s; one_hot(z)] to W_s s + W_z[z] + b: a one-hot code times a
+    matrix is one of its rows. The state part is computed once per state and each skill
+    adds its row, so L skills cost one matmul of the states plus L row additions instead
+    of L concatenations and matmuls; the other layers run on the (B, L) batch at once.
+
+    Args:
+      params: parameters of `skill_dynamics_network` (its sizes are read from them).
+      s: (B, S) model inputs.
+      skills: (B, L) int skills to evaluate at each state, or None for all K skills in
+        order (L = K).
+      act: the network's hidden activation (a key of `qdrl.nets.ACTIVATIONS`).
+
+    Returns:
+      logits (B, L, M), means (B, L, M, D) and log_std (B, L, M, D) of the mixtures.
+    """
+    activation = nets.activation(act)
+    first = params["mlp/~/linear_0"]
+    state_size = s.shape[-1]
+    w_state, w_skill = first["w"][:state_size], first["w"][state_size:]
+    rows = w_skill if skills is None else w_skill[skills]  # (K, H) or (B, L, H)
+    h = activation((s @ w_state + first["b"])[..., None, :] + rows)
+    layer = 1
+    while f"mlp/~/linear_{layer}" in params:
+        dense = params[f"mlp/~/linear_{layer}"]
+        h = activation(h @ dense["w"] + dense["b"])
+        layer += 1
+    # The heads as one matmul: a few output columns each are cheaper read together.
+    heads = ("logits", "means", "log_std") if "log_std" in params else ("logits", "means")
+    w = jnp.concatenate([params[name]["w"] for name in heads], axis=-1)
+    b = jnp.concatenate([params[name]["b"] for name in heads], axis=-1)
+    out = h @ w + b
+    m = params["logits"]["w"].shape[-1]
+    md = params["means"]["w"].shape[-1]
+    logits = out[..., :m]
+    means = out[..., m : m + md].reshape((*h.shape[:-1], m, md // m))
+    if "log_std" in params:
+        log_std = _bounded_log_std(out[..., m + md :].reshape(means.shape))
+    else:
+        log_std = jnp.zeros_like(means)
+    return logits, means, log_std
 
 
 def make_dads_module(config: DADSConfig, obs_size: int, descriptor_size: int) -> RewardModule:
@@ -210,9 +274,10 @@ def make_dads_module(config: DADSConfig, obs_size: int, descriptor_size: int) ->
         delta = transitions.next_desc - transitions.desc
         return normalize(moments, delta) if config.normalize_targets else delta
 
-    def log_prob(params: Params, s: Array, skills: Array, x: Array) -> Array:
-        logits, means, log_std = network.apply(params, s, jax.nn.one_hot(skills, k))
-        return mixture_log_prob(logits, means, log_std, x)
+    def log_prob(params: Params, s: Array, skills: Array | None, x: Array) -> Array:
+        """log q(x | s, z) for the (B, L) skills z of each of the B states (None: all K): (B, L)."""
+        logits, means, log_std = skill_dynamics_outputs(params, s, skills, config.activation)
+        return mixture_log_prob(logits, means, log_std, x[..., None, :])
 
     def init(key: PRNGKey) -> SkillDynamicsState:
         params = network.init(key, jnp.zeros((1, keep.size)), jnp.zeros((1, k)))
@@ -225,14 +290,16 @@ def make_dads_module(config: DADSConfig, obs_size: int, descriptor_size: int) ->
     ) -> tuple[Array, Info]:
         skills = skill_of(transitions.obs, k)
         s, x = state_input(transitions), target(state.moments, transitions)
-        log_q = log_prob(state.params, s, skills, x)
         batch = skills.shape[0]
         if config.num_alt_skills == 0:
-            alt = jnp.broadcast_to(jnp.arange(k, dtype=jnp.int32), (batch, k))
+            # Every skill once: the played one is among them, its likelihood is read off.
+            log_q_alt = log_prob(state.params, s, None, x)
+            log_q = jnp.take_along_axis(log_q_alt, skills[:, None], axis=1)[:, 0]
         else:
             alt = jax.random.randint(key, (batch, config.num_alt_skills), 0, k, jnp.int32)
-        # (L, B): one pass of the model per alternative skill over the whole batch.
-        log_q_alt = jax.vmap(lambda z: log_prob(state.params, s, z, x), in_axes=1, out_axes=1)(alt)
+            # The played skill and the L alternatives in one batched pass of the model.
+            log_q_all = log_prob(state.params, s, jnp.concatenate([skills[:, None], alt], 1), x)
+            log_q, log_q_alt = log_q_all[:, 0], log_q_all[:, 1:]
         return dads_reward(log_q, log_q_alt), {"dynamics_log_likelihood": log_q}
 
     def update(
@@ -245,7 +312,10 @@ def make_dads_module(config: DADSConfig, obs_size: int, descriptor_size: int) ->
         s, x = state_input(transitions), target(moments, transitions)
 
         def loss_fn(params: Params) -> Array:
-            return -jnp.mean(log_prob(params, s, skills, x))
+            # The definition itself: one skill per state gains nothing from the factored pass,
+            # and the gradient of a one-hot matmul is cheaper than that of a row gather.
+            logits, means, log_std = network.apply(params, s, jax.nn.one_hot(skills, k))
+            return -jnp.mean(mixture_log_prob(logits, means, log_std, x))
 
         loss, grads = jax.value_and_grad(loss_fn)(state.params)
         updates, opt_state = adam.update(grads, state.opt_state, state.params)
@@ -267,6 +337,4 @@ def make_dads(
     `gate` (SMERL, `qdrl.agents.smerl`) opens the diversity reward per transition.
     """
     module = make_dads_module(config, obs_size, descriptor_size)
-    return with_intrinsic_reward(
-        agent, module, config.diversity_scale, config.extrinsic_scale, gate
-    )
+    return with_skill_model(agent, module, config, gate)

@@ -32,7 +32,7 @@ from qdrl.agents.intrinsic import (
     RewardModule,
     SkillInput,
     SkillModelConfig,
-    with_intrinsic_reward,
+    with_skill_model,
 )
 from qdrl.envs.skills import skill_of, strip_skill
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
@@ -149,6 +149,4 @@ def make_diayn(
     `gate` (SMERL, `qdrl.agents.smerl`) opens the diversity reward per transition.
     """
     module = make_diayn_module(config, obs_size, descriptor_size)
-    return with_intrinsic_reward(
-        agent, module, config.diversity_scale, config.extrinsic_scale, gate
-    )
+    return with_skill_model(agent, module, config, gate)

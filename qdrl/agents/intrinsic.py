@@ -12,7 +12,9 @@ batch. A `RewardModule` bundles that model: `init`, `reward` and `update`.
    or SMERL's [episode return >= target - margin] (Kumar et al. 2020, eq. 3);
 3. runs the wrapped agent's own `update` on the relabelled batch (SAC's losses,
    unchanged);
-4. takes one optimiser step of the model (`module.update`).
+4. takes one optimiser step of the model (`module.update`), on every update or, with
+   `model_update_every = n`, on every n-th (DADS's reference code trains its model 8
+   steps per 64 agent steps); the model's metrics read NaN on the updates it skips.
 
 The wrapped agent trains through the one off-policy loop (`qdrl.off_policy`);
 with a gate, the loop must store episode returns (`off_policy.EPISODE_RETURNS`),
@@ -75,6 +77,8 @@ class SkillModelConfig:
     diversity_scale: float = 1.0
     # Weight of the environment's reward in the relabelled reward (0: pure skill discovery).
     extrinsic_scale: float = 0.0
+    # The model takes one Adam step every this many agent updates (1: every update).
+    model_update_every: int = 1
 
     def __post_init__(self) -> None:
         # TOML and JSON give lists; tuples keep the config hashable.
@@ -98,6 +102,8 @@ class SkillModelConfig:
                     "a float > 0", self.learning_rate)
         for name in ("diversity_scale", "extrinsic_scale"):
             check_field(is_real(getattr(self, name)), s, name, "a finite float", getattr(self, name))
+        check_field(is_positive_int(self.model_update_every), s, "model_update_every",
+                    "a positive int", self.model_update_every)
 
 
 class RewardModule(NamedTuple):
@@ -123,6 +129,7 @@ class IntrinsicState(NamedTuple):
     agent: AgentState
     aux: Any
     hparams: dict[str, Array]
+    steps: Array  # int32 scalar, updates taken (the model trains when steps % every == 0)
 
 
 def relabel(
@@ -143,6 +150,7 @@ def with_intrinsic_reward(
     diversity_scale: float = 1.0,
     extrinsic_scale: float = 0.0,
     gate: Gate | None = None,
+    model_update_every: int = 1,
 ) -> Agent:
     """`agent` trained on batches relabelled with `module`'s intrinsic reward (see the module doc).
 
@@ -154,7 +162,10 @@ def with_intrinsic_reward(
       gate: None, or a function of the episode returns giving a 0/1 weight of the
         intrinsic reward per transition (SMERL); batches are then
         `(Transition, episode_return)`.
+      model_update_every: the model takes one step every this many updates (1: every one).
     """
+    if not is_positive_int(model_update_every):
+        raise ValueError(f"model_update_every: expected a positive int, got {model_update_every!r}")
 
     def init(key: PRNGKey) -> IntrinsicState:
         agent_key, aux_key = jax.random.split(key)
@@ -165,6 +176,7 @@ def with_intrinsic_reward(
                 "diversity_scale": jnp.asarray(diversity_scale, jnp.float32),
                 "extrinsic_scale": jnp.asarray(extrinsic_scale, jnp.float32),
             },
+            steps=jnp.zeros((), jnp.int32),
         )
 
     def act(state: IntrinsicState, obs: Array, key: PRNGKey) -> Array:
@@ -172,6 +184,21 @@ def with_intrinsic_reward(
 
     def policy_params(state: IntrinsicState) -> Any:
         return agent.policy_params(state.agent)
+
+    def train_model(
+        aux: Any, transitions: Transition, key: PRNGKey, steps: Array
+    ) -> tuple[Any, Metrics]:
+        if model_update_every == 1:
+            return module.update(aux, transitions, key)
+
+        def skip(aux: Any, transitions: Transition, key: PRNGKey) -> tuple[Any, Metrics]:
+            shapes = jax.eval_shape(module.update, aux, transitions, key)[1]
+            return aux, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
+
+        # A real branch (unless vmapped, e.g. in a population): skipped steps cost nothing.
+        return jax.lax.cond(
+            steps % model_update_every == 0, module.update, skip, aux, transitions, key
+        )
 
     def update(state: IntrinsicState, batch: Any, key: PRNGKey) -> tuple[IntrinsicState, Metrics]:
         if gate is None:
@@ -189,7 +216,7 @@ def with_intrinsic_reward(
         agent_state, metrics = agent.update(
             state.agent, transitions._replace(reward=reward), agent_key
         )
-        aux, aux_metrics = module.update(state.aux, transitions, aux_key)
+        aux, aux_metrics = train_model(state.aux, transitions, aux_key, state.steps)
         out = dict(metrics)
         out.update(aux_metrics)
         out.update({k: jnp.mean(v) for k, v in info.items()})
@@ -197,8 +224,18 @@ def with_intrinsic_reward(
         out["task_reward"] = jnp.mean(transitions.reward)
         if weight is not None:
             out["gate_open"] = jnp.mean(weight)
-        return IntrinsicState(agent_state, aux, state.hparams), out
+        return IntrinsicState(agent_state, aux, state.hparams, state.steps + 1), out
 
     return Agent(
         init=init, act=act, policy=agent.policy, policy_params=policy_params, update=update
+    )
+
+
+def with_skill_model(
+    agent: Agent, module: RewardModule, config: SkillModelConfig, gate: Gate | None = None
+) -> Agent:
+    """`with_intrinsic_reward` with the reward weights and model schedule of a `[skills]` config."""
+    return with_intrinsic_reward(
+        agent, module, config.diversity_scale, config.extrinsic_scale, gate,
+        config.model_update_every,
     )

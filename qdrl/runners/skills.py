@@ -32,7 +32,7 @@ from qdrl import off_policy
 from qdrl.agents.base import Agent, AgentState
 from qdrl.agents.dads import DADSConfig, make_dads_module
 from qdrl.agents.diayn import DIAYNConfig, make_diayn_module
-from qdrl.agents.intrinsic import RewardModule, with_intrinsic_reward
+from qdrl.agents.intrinsic import RewardModule, with_skill_model
 from qdrl.agents.sac import SACConfig, make_sac
 from qdrl.agents.smerl import SMERLConfig, smerl_gate
 from qdrl.config import ConfigError, build
@@ -192,9 +192,7 @@ class SkillRun(OffPolicyRun):
         except ValueError as e:
             msg = str(e)
             raise ConfigError(msg if msg.startswith("skills.") else f"agent: {msg}") from e
-        self.agent: Agent = with_intrinsic_reward(
-            sac, self.module, skills_cfg.diversity_scale, skills_cfg.extrinsic_scale, gate
-        )
+        self.agent: Agent = with_skill_model(sac, self.module, skills_cfg, gate)
         storage = off_policy.EPISODE_RETURNS if smerl else off_policy.REPLAY
         self.trainer = make_trainer(self.env, self.agent, train_cfg, storage)
         self.num_eval = train_cfg.num_eval_envs
@@ -313,9 +311,7 @@ def skill_trainer_builder(
         sac = make_sac(SACConfig(hidden=hidden), skill_env.observation_size, env.action_size)
         s = smerl or SMERLConfig()
         gate = smerl_gate(s.target, s.margin) if is_smerl else None
-        agent = with_intrinsic_reward(
-            sac, module, skills.diversity_scale, skills.extrinsic_scale, gate
-        )
+        agent = with_skill_model(sac, module, skills, gate)
         storage = off_policy.EPISODE_RETURNS if is_smerl else off_policy.REPLAY
         return make_trainer(skill_env, agent, config, storage)
 

@@ -18,6 +18,8 @@ from qdrl.agents.dads import (
     make_dads_module,
     mixture_log_prob,
     normalize,
+    skill_dynamics_network,
+    skill_dynamics_outputs,
     update_moments,
 )
 from qdrl.agents.diayn import (
@@ -162,6 +164,80 @@ def test_dads_sampled_alternatives_and_omitted_dims() -> None:
         make_dads_module(DADSConfig(num_skills=K, omit_input_dims=(5,)), 3, 2)
 
 
+@pytest.mark.parametrize("learn_variance", [False, True])
+def test_factored_pass_matches_the_network_on_one_hot_inputs(learn_variance: bool) -> None:
+    # skill_dynamics_outputs shares the first layer's state part between skills; it must
+    # give what the network gives on [s; one_hot(z)] for each skill, for any skill list.
+    net = skill_dynamics_network(2, 3, (16, 8), "tanh", learn_variance)
+    params = net.init(jax.random.PRNGKey(0), jnp.zeros((1, 3)), jnp.zeros((1, K)))
+    s = jax.random.normal(jax.random.PRNGKey(1), (5, 3))
+    skills = jax.random.randint(jax.random.PRNGKey(2), (5, 7), 0, K)
+    for chosen in (skills, None):
+        z = jnp.broadcast_to(jnp.arange(K), (5, K)) if chosen is None else chosen
+        got = skill_dynamics_outputs(params, s, chosen, "tanh")
+        want = net.apply(params, jnp.broadcast_to(s[:, None], (*z.shape, 3)), jax.nn.one_hot(z, K))
+        assert got[1].shape == (5, z.shape[1], 3, 2)
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_allclose(g, w, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("num_alt", [0, 3])
+def test_dads_reward_matches_a_pass_per_skill(num_alt: int) -> None:
+    # The reward as first written: one pass of the network per skill, one-hot inputs, and
+    # the played skill's likelihood from a pass of its own.
+    cfg = DADSConfig(num_skills=K, hidden=(16, 16), num_alt_skills=num_alt)
+    module = make_dads_module(cfg, 3, 2)
+    state = module.init(jax.random.PRNGKey(0))
+    rng = np.random.default_rng(1)
+    desc = rng.normal(size=(9, 2)).astype(np.float32)
+    tr = _transitions(9, np.arange(9) % K, desc, desc + rng.normal(size=(9, 2)))
+    # Moments as after some training, so the targets are normalised.
+    state = state._replace(moments=RunningMoments(jnp.array([0.1, -0.2]), jnp.array([0.5, 2.0]),
+                                                  jnp.array(100.0)))
+    net = skill_dynamics_network(2, cfg.num_components, cfg.hidden, cfg.activation, False)
+    x = normalize(state.moments, tr.next_desc - tr.desc)
+
+    def log_q(z: jnp.ndarray) -> jnp.ndarray:
+        return mixture_log_prob(*net.apply(state.params, tr.desc, jax.nn.one_hot(z, K)), x)
+
+    key = jax.random.PRNGKey(3)
+    alt = (jnp.broadcast_to(jnp.arange(K), (9, K)) if num_alt == 0
+           else jax.random.randint(key, (9, num_alt), 0, K, jnp.int32))
+    log_alt = jnp.stack([log_q(alt[:, i]) for i in range(alt.shape[1])], axis=1)
+    played = log_q(skill_of(tr.obs, K))
+    r, info = module.reward(state, tr, key)
+    np.testing.assert_allclose(r, dads_reward(played, log_alt), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(info["dynamics_log_likelihood"], played, rtol=1e-5, atol=1e-5)
+
+
+def test_dads_module_update_is_a_maximum_likelihood_step() -> None:
+    # One update: the moments see the batch, then one Adam step on -mean log q under them.
+    cfg = DADSConfig(num_skills=K, hidden=(8,), learning_rate=1e-2)
+    module = make_dads_module(cfg, 3, 2)
+    state = module.init(jax.random.PRNGKey(0))
+    desc = np.random.default_rng(0).normal(size=(6, 2)).astype(np.float32)
+    tr = _transitions(6, np.arange(6) % K, desc, 2.0 * desc)
+    new_state, metrics = module.update(state, tr, jax.random.PRNGKey(1))
+    moments = update_moments(state.moments, tr.next_desc - tr.desc)
+    np.testing.assert_allclose(new_state.moments.mean, np.mean(desc, 0), rtol=1e-5)
+    net = skill_dynamics_network(2, cfg.num_components, cfg.hidden, cfg.activation, False)
+    x = normalize(moments, tr.next_desc - tr.desc)
+
+    def loss(params: dict) -> jnp.ndarray:  # type: ignore[type-arg]
+        out = net.apply(params, tr.desc, jax.nn.one_hot(skill_of(tr.obs, K), K))
+        return -jnp.mean(mixture_log_prob(*out, x))
+
+    np.testing.assert_allclose(metrics["dynamics_loss"], loss(state.params), rtol=1e-5)
+    # Adam's first step moves every weight by lr * sign(gradient) (up to its epsilon).
+    grads = jax.grad(loss)(state.params)
+    w = "mlp/~/linear_0"
+    step = new_state.params[w]["w"] - state.params[w]["w"]
+    nonzero = np.abs(np.asarray(grads[w]["w"])) > 1e-4  # where Adam's epsilon is negligible
+    assert nonzero.sum() > 10
+    np.testing.assert_allclose(np.asarray(step)[nonzero],
+                               -1e-2 * np.sign(np.asarray(grads[w]["w"]))[nonzero], rtol=1e-3)
+
+
 # -- SMERL, relabelling and the trajectory buffer ---------------------------------------
 
 
@@ -197,6 +273,32 @@ def test_intrinsic_agent_relabels_the_batch_sac_sees() -> None:
     # reward = 0.5 * [0, 1, 2] + 2 * 3 * gate, gate = [1, 0, 0]
     np.testing.assert_allclose(seen[0], [6.0, 0.5, 1.0])
     assert float(state.aux) == 1.0 and float(metrics["gate_open"]) == pytest.approx(1 / 3)
+
+
+def test_model_trains_every_nth_update_and_reports_nan_between() -> None:
+    # A model that counts its steps, trained on updates 0, 3 and 6 of 7 (every 3rd).
+    from qdrl.agents.base import Agent
+
+    inner = Agent(lambda k: 0, lambda s, o, k: o, lambda p, o: o, lambda s: s,
+                  lambda s, t, k: (s, {"agent_loss": jnp.ones(())}))
+    module = RewardModule(
+        init=lambda k: jnp.zeros(()),
+        reward=lambda a, t, k: (jnp.zeros(t.reward.shape), {}),
+        update=lambda a, t, k: (a + 1.0, {"model_loss": a + 1.0}),
+    )
+    agent = with_intrinsic_reward(inner, module, model_update_every=3)
+    tr = _transitions(2, np.zeros(2, int), np.zeros((2, 2)), np.zeros((2, 2)))
+    state = agent.init(jax.random.PRNGKey(0))
+    update = jax.jit(agent.update)
+    losses = []
+    for i in range(7):
+        state, metrics = update(state, tr, jax.random.PRNGKey(i))
+        losses.append(float(metrics["model_loss"]))
+    assert float(state.aux) == 3.0 and int(state.steps) == 7
+    np.testing.assert_array_equal(losses, [1.0, np.nan, np.nan, 2.0, np.nan, np.nan, 3.0])
+    assert DADSConfig().model_update_every == 8 and DIAYNConfig().model_update_every == 1
+    with pytest.raises(ValueError, match="model_update_every"):
+        with_intrinsic_reward(inner, module, model_update_every=0)
 
 
 def test_trajectory_buffer_knows_episode_returns() -> None:
@@ -281,6 +383,9 @@ def test_smerl_trains_through_the_loop_with_episode_returns(algo: str) -> None:
     # the transitions of finished episodes pass the gate, the running ones read NaN
     assert 0.0 < gate_open <= 1.0
     assert np.isfinite(float(metrics["critic_loss"]))
+    # DADS's model trains on one update in 8: the chunk still reports its loss.
+    model_loss = "discriminator_loss" if algo == "diayn" else "dynamics_loss"
+    assert np.isfinite(float(metrics[model_loss]))
 
 
 def test_diayn_tiny_run_discriminates_skills() -> None:
