@@ -39,8 +39,11 @@ ROOT = Path(__file__).resolve().parent.parent
 ALGORITHMS = ("pga_me", "map_elites")
 
 
-def run_one(algorithm: str, task: str, seed: int, iterations: int | None, log_every: int | None) -> dict[str, Any]:
-    """One `qdrl run` of the CPU spec; its rows and summary."""
+def run_one(
+    algorithm: str, task: str, seed: int, iterations: int | None, log_every: int | None,
+    extra: list[str] | None = None,
+) -> dict[str, Any]:
+    """One `qdrl run` of the CPU spec (with the `extra` overrides last); its rows and summary."""
     from qdrl.experiment import run_spec
 
     spec = ROOT / "agents" / f"{algorithm}_{task}_cpu.toml"
@@ -49,6 +52,7 @@ def run_one(algorithm: str, task: str, seed: int, iterations: int | None, log_ev
         overrides.append(f"qd.num_iterations={iterations}")
     if log_every is not None:
         overrides.append(f"qd.log_every={log_every}")
+    overrides += extra or []
     with tempfile.TemporaryDirectory() as tmp:
         summary = run_spec(spec, overrides, Path(tmp) / "out")
         lines = (Path(tmp) / "out" / "metrics.csv").read_text().splitlines()
@@ -95,6 +99,8 @@ def main() -> None:
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--iterations", type=int, default=None)
     p.add_argument("--log-every", type=int, default=None)
+    p.add_argument("--override", nargs="*", default=[], metavar="ALGORITHM:KEY=VALUE",
+                   help="a spec override for one algorithm's runs, e.g. map_elites:emitter.batch_size=48")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "pga_me_vs_map_elites.json"))
     p.add_argument("--plots", default=str(ROOT / "docs"))
     args = p.parse_args()
@@ -106,6 +112,12 @@ def main() -> None:
     previous = json.loads(out.read_text()) if out.exists() else {}
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     algorithms = tuple(args.algorithms)
+    extra: dict[str, list[str]] = {a: [] for a in algorithms}
+    for item in args.override:
+        name, _, override = item.partition(":")
+        if name not in extra or "=" not in override:
+            p.error(f"--override: expected ALGORITHM:KEY=VALUE with ALGORITHM in {list(algorithms)}, got {item!r}")
+        extra[name].append(override)
     # runs of other tasks, seeds or algorithms stay, so seeds can be added one invocation at a time
     runs: list[dict[str, Any]] = [
         r for r in previous.get("runs", [])
@@ -123,7 +135,7 @@ def main() -> None:
             # alternate which algorithm goes first, so machine load drifts hit both alike
             order = algorithms if seed % 2 == 0 else algorithms[::-1]
             for algorithm in order:
-                rec = run_one(algorithm, task, seed, args.iterations, args.log_every)
+                rec = run_one(algorithm, task, seed, args.iterations, args.log_every, extra[algorithm])
                 runs.append(rec)
                 print(json.dumps({"algorithm": algorithm, "task": task, "seed": seed, **rec["summary"]}),
                       file=sys.stderr)
