@@ -19,7 +19,6 @@ task's descriptor bounds and QD offset).
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -44,67 +43,31 @@ from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import observe
 from qdrl.rollout import run_episodes
 from qdrl.runners.rl import ArchiveConfig, OffPolicyRun, RLState
+from qdrl.tasks import Task, make_task
 from qdrl.types import Array, PRNGKey
 
 Backend = Literal["spring", "positional", "generalized", "mjx"]
 
 
-@dataclasses.dataclass(frozen=True)
-class SkillTask:
-    """An environment for skill discovery and the passive archive that measures it.
-
-    Matches the QD task of the same name (`qdrl.tasks`): same environment, reward,
-    episode descriptor, bounds and QD offset, so skill discovery and QD algorithms
-    are compared on one scale.
-    """
-
-    make_env: Callable[[int, str], Env]  # (episode_length, backend) -> env
-    descriptor: Literal["final", "mean"]
-    low: tuple[float, ...]
-    high: tuple[float, ...]
-    offset_per_step: float  # qd_offset = -offset_per_step * episode_length
+# The QD tasks (`qdrl.tasks`) a skill-discovery run can use: their environment,
+# reward, episode descriptor, bounds and QD offset measure skills and QD algorithms
+# on one scale.
+SKILL_TASKS: tuple[str, ...] = ("point_maze", "ant_omni", "ant_trap", "ant_maze", "halfcheetah_uni")
 
 
-def _brax(name: str, state_descriptor: str, reward: str | None = None) -> Callable[[int, str], Env]:
-    def make(episode_length: int, backend: str) -> Env:
-        from qdrl.envs.brax import BraxEnv
-
-        return BraxEnv(name, backend, episode_length, state_descriptor=state_descriptor, reward=reward)
-
-    return make
-
-
-def _point_maze(episode_length: int, backend: str) -> Env:
-    del backend
-    from qdrl.envs.point_maze import PointMazeEnv
-
-    return PointMazeEnv(episode_length=episode_length)
-
-
-def _skill_tasks() -> dict[str, SkillTask]:
-    from qdrl.tasks import brax_qd as b
-
-    off = b.REWARD_OFFSETS
-    return {
-        "point_maze": SkillTask(_point_maze, "final", (-1.0, -1.0), (1.0, 1.0), 2.0 * math.sqrt(2.0)),
-        "ant_omni": SkillTask(_brax("ant", "xy", "no_forward"), "final", *b.OMNI_BOUNDS, off["ant_omni"]),
-        "ant_trap": SkillTask(_brax("anttrap", "xy"), "final", *b.TRAP_BOUNDS, off["ant_trap"]),
-        "ant_maze": SkillTask(_brax("antmaze", "xy"), "final", *b.MAZE_BOUNDS, b.MAZE_MAX_DISTANCE),
-        "halfcheetah_uni": SkillTask(
-            _brax("halfcheetah", "feet_contact"), "mean", (0.0, 0.0), (1.0, 1.0),
-            off["halfcheetah_uni"],
-        ),
-    }
-
-
-SKILL_TASKS: dict[str, SkillTask] = _skill_tasks()
+def skill_task(name: str, episode_length: int, backend: str) -> Task:
+    """The QD task `name` at this episode length (brax tasks: on this physics backend)."""
+    params: dict[str, Any] = {"episode_length": episode_length}
+    if name != "point_maze":
+        params["backend"] = backend
+    return make_task(name, **params)
 
 
 @dataclasses.dataclass(frozen=True)
 class SkillEnvConfig:
     """The `[env]` section: which task, on which physics backend (brax tasks)."""
 
-    task: str = "ant_omni"  # a key of SKILL_TASKS
+    task: str = "ant_omni"  # one of SKILL_TASKS
     backend: Backend = "spring"  # brax physics pipeline (ignored by point_maze)
     episode_length: int = 1000  # steps before truncation
 
@@ -138,7 +101,7 @@ class SkillRun(OffPolicyRun):
         smerl: bool,
     ) -> None:
         env_cfg = build(SkillEnvConfig, spec.get("env", {}), "env")
-        task = SKILL_TASKS[env_cfg.task]
+        task = skill_task(env_cfg.task, env_cfg.episode_length, env_cfg.backend)
         agent_cfg = build(SACConfig, spec.get("agent", {}), "agent")
         train_cfg = build(TrainConfig, spec.get("train", {}), "train")
         skills_cls = DIAYNConfig if base == "diayn" else DADSConfig
@@ -148,10 +111,10 @@ class SkillRun(OffPolicyRun):
             skills_data.setdefault("extrinsic_scale", 1.0)
         skills_cfg = build(skills_cls, skills_data, "skills")
         archive_defaults = {
-            "descriptor": task.descriptor,
-            "low": list(task.low),
-            "high": list(task.high),
-            "qd_offset": -task.offset_per_step * env_cfg.episode_length,
+            "descriptor": task.episode_descriptor,
+            "low": list(task.descriptor_low),
+            "high": list(task.descriptor_high),
+            "qd_offset": task.qd_offset,
         }
         archive_cfg = build(
             ArchiveConfig, {**archive_defaults, **spec.get("archive", {})}, "archive"
@@ -178,7 +141,7 @@ class SkillRun(OffPolicyRun):
         self.task = env_cfg.task
         self.archive_cfg = archive_cfg
         self.skills_cfg = skills_cfg
-        self.base_env = task.make_env(env_cfg.episode_length, env_cfg.backend)
+        self.base_env = task.env
         if len(archive_cfg.grid_shape) != self.base_env.descriptor_size:
             raise ConfigError(
                 f"archive.grid_shape: expected {self.base_env.descriptor_size} entries (the state "

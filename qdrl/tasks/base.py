@@ -26,9 +26,11 @@ class Task:
     all start from one point, or policy tasks whose genotypes are parameter trees.
     `genotype_template` is one genotype (no batch axis) when genotypes are not flat
     vectors; `genotype_size` then counts its scalars.
-    Policy tasks also give their environment (`env`) and `policy_scoring(network)`:
+    Policy tasks also give their environment (`env`), `policy_scoring(network)`:
     the task's scoring function for genotypes of another policy (anything with
-    `apply(genotype, obs) -> action`), e.g. whole RL agents in ME-PBT.
+    `apply(genotype, obs) -> action`), e.g. whole RL agents in ME-PBT, and
+    `episode_descriptor`: how an episode's descriptor is read from its state
+    descriptors ("final" or "mean"), so that RL runs fill the same archive.
     """
 
     name: str
@@ -44,6 +46,7 @@ class Task:
     genotype_template: Any = None
     env: Any = None
     policy_scoring: Callable[[Any], ScoringFn] | None = None
+    episode_descriptor: str | None = None
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):

@@ -155,4 +155,5 @@ def policy_task(
         genotype_template=template,
         env=env,
         policy_scoring=scoring_for,
+        episode_descriptor=descriptor,
     )
