@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import json
 import math
 import re
-import shutil
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -327,7 +325,9 @@ checkpoint_every = 1
 """
 
 
-def test_dcrl_me_runs_through_qdrl_run_and_resumes_with_its_emitter_state(tmp_path: Path) -> None:
+def test_dcrl_me_runs_through_qdrl_run_and_resumes_with_its_emitter_state(
+    tmp_path: Path, resumes_bit_identically: Any
+) -> None:
     spec = tmp_path / "dcrl_me.toml"
     spec.write_text(SPEC)
     out = tmp_path / "out"
@@ -338,15 +338,9 @@ def test_dcrl_me_runs_through_qdrl_run_and_resumes_with_its_emitter_state(tmp_pa
     resolved = (out / "config.toml").read_text()
     # the task's reward offset (2 sqrt(2) per step in the point maze) is filled in
     assert re.search(r"reward_offset = 2\.828", resolved)
-    # Drop the last checkpoint and resume from the first: the emitter state (critic,
-    # buffer, next parents and targets) comes back, so the second half is bit-identical.
-    checkpoints = sorted((out / "checkpoints").glob("step_*"))
-    assert len(checkpoints) == 2
-    shutil.rmtree(checkpoints[-1])
-    resumed = run_spec(spec, [], out, resume=True)
-    for key in ("qd_score", "max_fitness", "coverage", "critic_steps", "buffer_size"):
-        assert resumed[key] == summary[key], key
-    assert json.loads((out / "summary.json").read_text())["qd_score"] == summary["qd_score"]
+    resumes_bit_identically(
+        spec, out, summary, ("qd_score", "max_fitness", "coverage", "critic_steps", "buffer_size")
+    )
 
 
 @pytest.mark.parametrize(
