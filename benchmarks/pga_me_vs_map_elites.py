@@ -124,9 +124,9 @@ def main() -> None:
         if r["task"] not in args.tasks or r["seed"] not in seeds or r["algorithm"] not in algorithms
     ]
     if args.compare_with:
-        # runs copied from the reference file (marked "from") are replaced by its current ones
+        # runs copied from the reference file (marked "from") for these tasks are replaced by its current ones
         reference = json.loads(Path(args.compare_with).read_text())
-        runs = [r for r in runs if "from" not in r] + [
+        runs = [r for r in runs if "from" not in r or r["task"] not in args.tasks] + [
             r | {"from": args.compare_with} for r in reference.get("runs", [])
             if r["algorithm"] not in algorithms and r["task"] in args.tasks
         ]
