@@ -13,13 +13,14 @@ from qdrl.qd.emitters.ga import (
     polynomial_emitter,
     polynomial_mutation,
 )
-from qdrl.qd.emitters.multi import MultiEmitter, split_batch
+from qdrl.qd.emitters.multi import MultiEmitter, concat_batches, split_batch
 
 __all__ = [
     "GAEmitter",
     "MultiEmitter",
     "MutationFn",
     "VariationFn",
+    "concat_batches",
     "gaussian_mutation",
     "isoline_emitter",
     "isoline_variation",

@@ -52,7 +52,7 @@ from qdrl.agents.td3 import TD3Networks, TD3State, make_td3, td3_actor_step
 from qdrl.buffers import ReplayBuffer
 from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_emitter
-from qdrl.qd.emitters.multi import MultiEmitter
+from qdrl.qd.emitters.multi import MultiEmitter, concat_batches
 from qdrl.qd.emitters.pg import PGConfig, insert_valid
 from qdrl.qd.repertoires.cells import sample_filled_indices
 from qdrl.types import Array, Genotype, Params, PRNGKey, Transition
@@ -170,10 +170,6 @@ def fold_descriptor(dc_params: Params, target_desc: Array, layer: str, obs_size:
     return folded
 
 
-def _concat(*trees: Genotype) -> Genotype:
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *trees)
-
-
 @dataclasses.dataclass(eq=False)
 class DCRLEmitter:
     """DCRL emitter: `num_pg` descriptor-conditioned PG offspring, then `num_ai` injected actors.
@@ -284,7 +280,7 @@ class DCRLEmitter:
                     state.td3.policy_params, state.targets[self.num_pg :]
                 )
             )
-        return parts[0] if len(parts) == 1 else _concat(*parts)
+        return concat_batches(parts)
 
     def pg_variation(
         self, state: DCRLEmitterState, params: Params, target_desc: Array, key: PRNGKey

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
+from qdrl.qd.emitters.multi import concat_batches
 from qdrl.types import Array, Genotype, PRNGKey
 
 VariationFn = Callable[[Genotype, Genotype, PRNGKey], Genotype]
@@ -251,9 +252,7 @@ class GAEmitter:
             assert self.mutation_fn is not None
             x = repertoire.sample(key_3, self.num_mutation)
             parts.append(self.mutation_fn(x, key_mutation))
-        if len(parts) == 1:
-            return parts[0]
-        return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *parts)
+        return concat_batches(parts)
 
     def update(
         self,

@@ -48,6 +48,13 @@ def _slice(tree: Any, start: int, stop: int, axis: int = 0) -> Any:
     return jax.tree.map(lambda x: jax.lax.slice_in_dim(x, start, stop, axis=axis), tree)
 
 
+
+def concat_batches(parts: Sequence[Genotype]) -> Genotype:
+    """Batches of genotypes (pytrees with a leading axis) joined along that axis, in order."""
+    if len(parts) == 1:
+        return parts[0]
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *parts)
+
 @dataclasses.dataclass(eq=False)
 class MultiEmitter:
     """Runs `emitters` side by side; batch_size is the sum of theirs, offspring in their order.
@@ -105,9 +112,7 @@ class MultiEmitter:
                     f"but emitted leading sizes {sorted(sizes)}"
                 )
             offspring.append(genotypes)
-        if len(offspring) == 1:
-            return offspring[0]
-        return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *offspring)
+        return concat_batches(offspring)
 
     def update(
         self,

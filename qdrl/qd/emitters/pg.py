@@ -39,7 +39,7 @@ from qdrl.agents.td3 import TD3Config, TD3Networks, TD3State, make_td3, td3_acto
 from qdrl.buffers import ReplayBuffer
 from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_emitter
-from qdrl.qd.emitters.multi import MultiEmitter, split_batch
+from qdrl.qd.emitters.multi import MultiEmitter, concat_batches, split_batch
 from qdrl.types import Array, Genotype, Params, PRNGKey, PyTree, Transition
 
 Items = TypeVar("Items")
@@ -174,10 +174,6 @@ def insert_valid(buffer: ReplayBuffer, transitions: PyTree, mask: Array) -> Repl
     return buffers.insert(buffer, items, num_valid)
 
 
-def _concat(*trees: Genotype) -> Genotype:
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *trees)
-
-
 @dataclasses.dataclass(eq=False)
 class PGEmitter:
     """Q-PG emitter (PGA-ME); with a `relabel` hook, D-PG (QD-PG). See the module docstring.
@@ -245,7 +241,7 @@ class PGEmitter:
             parts.append(jax.vmap(self.pg_variation, in_axes=(None, 0, 0))(state, parents, keys))
         if self.emit_greedy:
             parts.append(jax.tree.map(lambda x: x[None], state.td3.policy_params))
-        return parts[0] if len(parts) == 1 else _concat(*parts)
+        return concat_batches(parts)
 
     def pg_variation(self, state: PGEmitterState, params: Params, key: PRNGKey) -> Params:
         """One parent after `num_pg_training_steps` TD3 actor steps against the emitter's critic.
