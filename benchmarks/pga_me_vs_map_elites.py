@@ -41,12 +41,14 @@ ALGORITHMS = ("pga_me", "map_elites")
 
 def run_one(
     algorithm: str, task: str, seed: int, iterations: int | None, log_every: int | None,
-    extra: list[str] | None = None,
+    extra: list[str] | None = None, variant: str = "cpu",
 ) -> dict[str, Any]:
-    """One `qdrl run` of the CPU spec (with the `extra` overrides last); its rows and summary."""
+    """One `qdrl run` of `agents/<algorithm>_<task>_<variant>.toml` (the `extra` overrides last)."""
     from qdrl.experiment import run_spec
 
-    spec = ROOT / "agents" / f"{algorithm}_{task}_cpu.toml"
+    spec = ROOT / "agents" / f"{algorithm}_{task}_{variant}.toml"
+    if not spec.exists():
+        raise SystemExit(f"no spec {spec.relative_to(ROOT)} (algorithm {algorithm!r}, variant {variant!r})")
     overrides = [f"experiment.seed={seed}", "log.progress=false", "log.plots=false"]
     if iterations is not None:
         overrides.append(f"qd.num_iterations={iterations}")
@@ -101,6 +103,9 @@ def main() -> None:
     p.add_argument("--log-every", type=int, default=None)
     p.add_argument("--override", nargs="*", default=[], metavar="ALGORITHM:KEY=VALUE",
                    help="a spec override for one algorithm's runs, e.g. map_elites:emitter.batch_size=48")
+    p.add_argument("--variant", nargs="*", default=[], metavar="ALGORITHM:NAME",
+                   help="run agents/<algorithm>_<task>_<NAME>.toml for that algorithm instead of _cpu, "
+                        "e.g. pga_me:cpu_paper_td3")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "pga_me_vs_map_elites.json"))
     p.add_argument("--plots", default=str(ROOT / "docs"))
     args = p.parse_args()
@@ -118,6 +123,12 @@ def main() -> None:
         if name not in extra or "=" not in override:
             p.error(f"--override: expected ALGORITHM:KEY=VALUE with ALGORITHM in {list(algorithms)}, got {item!r}")
         extra[name].append(override)
+    variants: dict[str, str] = dict.fromkeys(algorithms, "cpu")
+    for item in args.variant:
+        name, _, variant = item.partition(":")
+        if name not in variants or not variant:
+            p.error(f"--variant: expected ALGORITHM:NAME with ALGORITHM in {list(algorithms)}, got {item!r}")
+        variants[name] = variant
     # runs of other tasks, seeds or algorithms stay, so seeds can be added one invocation at a time
     runs: list[dict[str, Any]] = [
         r for r in previous.get("runs", [])
@@ -135,7 +146,9 @@ def main() -> None:
             # alternate which algorithm goes first, so machine load drifts hit both alike
             order = algorithms if seed % 2 == 0 else algorithms[::-1]
             for algorithm in order:
-                rec = run_one(algorithm, task, seed, args.iterations, args.log_every, extra[algorithm])
+                rec = run_one(
+                    algorithm, task, seed, args.iterations, args.log_every, extra[algorithm], variants[algorithm]
+                )
                 runs.append(rec)
                 print(json.dumps({"algorithm": algorithm, "task": task, "seed": seed, **rec["summary"]}),
                       file=sys.stderr)
