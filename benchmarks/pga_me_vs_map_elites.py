@@ -20,8 +20,12 @@ and environment steps. PGA-ME spends extra compute on TD3 (50 critic steps per
 iteration, 20 actor steps per PG offspring, batches of 64): the wall-time curve
 shows what that costs. `--iterations` overrides both specs' `qd.num_iterations`.
 
+`--variant pga_me:cpu_paper_td3` runs `agents/pga_me_<task>_cpu_paper_td3.toml`
+instead (the same task and archive, the paper's TD3 schedule).
+
 Writes `benchmarks/results/pga_me_vs_map_elites.json` (every run's metric rows,
-final figures and the per-task means) and, per task, `docs/pga_me_vs_map_elites_<task>.png`
+final figures and the per-task means; where a task's runs have different lengths,
+the means are taken at the evaluations all of them reached, from the logged rows) and, per task, `docs/pga_me_vs_map_elites_<task>.png`
 (QD score against evaluations and against wall time, one line per run).
 """
 
@@ -90,6 +94,21 @@ def comparison_title(names: list[str], task: str) -> str:
     return f"{', '.join(names)}\non {task} (CPU specs)"
 
 
+def at_budget(run: dict[str, Any], evaluations: float) -> dict[str, Any]:
+    """A run's figures after `evaluations` (its last logged row within it; its summary if it ended there).
+
+    The rates (env steps/s) and compile time are the whole run's; `run_s` is the time to that row.
+    """
+    summary = run["summary"]
+    if summary["evaluations"] <= evaluations:
+        return summary
+    row = [r for r in run["rows"] if r["evaluations"] <= evaluations][-1]
+    compile_s = summary["wall_s"] - summary["run_s"]
+    return summary | {k: row[k] for k in ("evaluations", "qd_score", "coverage", "max_fitness")} | {
+        "run_s": row["wall_s"] - compile_s
+    }
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--tasks", nargs="+", default=["halfcheetah_uni", "walker2d_uni"])
@@ -156,10 +175,12 @@ def main() -> None:
     for task in sorted({r["task"] for r in runs}):
         per_task: dict[str, Any] = {}
         present = sorted({r["algorithm"] for r in runs if r["task"] == task})
+        # runs of different lengths compare at the budget all of them reached
+        budget = min(r["summary"]["evaluations"] for r in runs if r["task"] == task)
         for algorithm in [*[a for a in ALGORITHMS if a in present], *[a for a in present if a not in ALGORITHMS]]:
-            rs = [r for r in runs if r["task"] == task and r["algorithm"] == algorithm]
+            rs = [at_budget(r, budget) for r in runs if r["task"] == task and r["algorithm"] == algorithm]
             per_task[algorithm] = {
-                k: round(statistics.mean(r["summary"][k] for r in rs), 3)
+                k: round(statistics.mean(r[k] for r in rs), 3)
                 for k in ("evaluations", "qd_score", "coverage", "max_fitness", "run_s", "compile_s",
                           "env_steps_per_s")
             } | {"seeds": len(rs)}
