@@ -104,7 +104,7 @@ def at_budget(run: dict[str, Any], evaluations: float) -> dict[str, Any]:
         return summary
     row = [r for r in run["rows"] if r["evaluations"] <= evaluations][-1]
     compile_s = summary["wall_s"] - summary["run_s"]
-    return summary | {k: row[k] for k in ("evaluations", "qd_score", "coverage", "max_fitness")} | {
+    return summary | {k: row[k] for k in ("evaluations", "env_steps", "qd_score", "coverage", "max_fitness")} | {
         "run_s": row["wall_s"] - compile_s
     }
 
