@@ -48,12 +48,12 @@ def _slice(tree: Any, start: int, stop: int, axis: int = 0) -> Any:
     return jax.tree.map(lambda x: jax.lax.slice_in_dim(x, start, stop, axis=axis), tree)
 
 
-
 def concat_batches(parts: Sequence[Genotype]) -> Genotype:
     """Batches of genotypes (pytrees with a leading axis) joined along that axis, in order."""
     if len(parts) == 1:
         return parts[0]
     return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *parts)
+
 
 @dataclasses.dataclass(eq=False)
 class MultiEmitter:
