@@ -1,5 +1,9 @@
 """QDax 0.5.0's PGA-ME on a brax v2 QD task, with the settings of agents/pga_me_<task>_cpu.toml.
 
+With `--algorithm map_elites` it runs QDax's MAP-Elites instead (its MixingEmitter,
+all 64 offspring iso-line), on the same task, archive and batch: QDax's own
+baseline for `benchmarks/qdax_pga_me_vs_map_elites.py`.
+
 QDax's Q-PG emitter imports `brax.v1`, which left brax in 0.12.4, so this runs only
 in a virtual environment with QDax's old pins. The one used here was made with
 
@@ -53,11 +57,17 @@ def main() -> None:
     p.add_argument("--train-batch", type=int, default=64)
     p.add_argument("--buffer", type=int, default=100_000)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--algorithm", choices=("pga_me", "map_elites"), default="pga_me")
+    p.add_argument("--log-every", type=int, default=0,
+                   help="also print the metrics every N iterations (and at the last) as `rows`")
     args = p.parse_args()
+    if args.iterations < 1 or args.log_every < 0:
+        p.error(f"expected --iterations >= 1 and --log-every >= 0, got {args.iterations} and {args.log_every}")
 
     from qdax.core.containers.mapelites_repertoire import compute_cvt_centroids
     from qdax.core.emitters.mutation_operators import isoline_variation
     from qdax.core.emitters.pga_me_emitter import PGAMEConfig, PGAMEEmitter
+    from qdax.core.emitters.standard_emitters import MixingEmitter
     from qdax.core.map_elites import MAPElites
     from qdax.core.neuroevolution.networks.networks import MLP
     from qdax.tasks.brax import v2 as environments
@@ -104,12 +114,14 @@ def main() -> None:
         soft_tau_update=0.005,
         policy_delay=2,
     )
-    emitter = PGAMEEmitter(
-        config=config,
-        policy_network=policy_network,
-        env=env,
-        variation_fn=functools.partial(isoline_variation, iso_sigma=0.005, line_sigma=0.05),
-    )
+    variation = functools.partial(isoline_variation, iso_sigma=0.005, line_sigma=0.05)
+    emitter: PGAMEEmitter | MixingEmitter
+    if args.algorithm == "pga_me":
+        emitter = PGAMEEmitter(config=config, policy_network=policy_network, env=env, variation_fn=variation)
+    else:
+        emitter = MixingEmitter(
+            mutation_fn=lambda x, k: x, variation_fn=variation, variation_percentage=1.0, batch_size=args.batch
+        )
     me = MAPElites(scoring_fn, emitter, functools.partial(default_qd_metrics, qd_offset=offset))
     t0 = time.perf_counter()
     repertoire, emitter_state, _ = jax.jit(me.init)(params, centroids, me_key)
@@ -127,18 +139,26 @@ def main() -> None:
     repertoire, metrics = compiled(repertoire, emitter_state, key)
     jax.block_until_ready(repertoire)
     run_s = time.perf_counter() - t0
+    rows = [
+        {
+            "evaluations": args.batch * (i + 2),
+            "env_steps": args.batch * (i + 2) * args.episode_length,
+            "qd_score": float(metrics["qd_score"][i]),
+            "coverage": float(metrics["coverage"][i]) / 100.0,
+            "max_fitness": float(metrics["max_fitness"][i]),
+        }
+        for i in range(args.iterations)
+        if args.log_every and ((i + 1) % args.log_every == 0 or i == args.iterations - 1)
+    ]
     print(json.dumps({
         "library": "qdax",
-        "algorithm": "pga_me",
+        "algorithm": args.algorithm,
         "task": args.task,
         "seed": args.seed,
         "episode_length": args.episode_length,
         "batch": args.batch,
         "iterations": args.iterations,
         "cells": args.cells,
-        "critic_steps": args.critic_steps,
-        "pg_steps": args.pg_steps,
-        "train_batch": args.train_batch,
         "evaluations": args.batch * (args.iterations + 1),
         "init_s": round(init_s, 2),
         "compile_s": round(compile_s, 2),
@@ -147,7 +167,8 @@ def main() -> None:
         "qd_score": float(metrics["qd_score"][-1]),
         "coverage": float(metrics["coverage"][-1]) / 100.0,
         "max_fitness": float(metrics["max_fitness"][-1]),
-    }))
+    } | ({"critic_steps": args.critic_steps, "pg_steps": args.pg_steps, "train_batch": args.train_batch,
+          "buffer": args.buffer} if args.algorithm == "pga_me" else {}) | ({"rows": rows} if rows else {})))
 
 
 if __name__ == "__main__":

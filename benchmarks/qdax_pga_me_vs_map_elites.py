@@ -1,0 +1,119 @@
+"""QDax 0.5.0's own PGA-ME against its own MAP-Elites on halfcheetah_uni, at the CPU budget.
+
+    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /work/qdax-old-venv/bin/python --seeds 2
+
+The reference check for `benchmarks/pga_me_vs_map_elites.py`: does the reference
+implementation's PGA-ME beat MAP-Elites at the budget qdrl's CPU comparison runs at?
+Both run `benchmarks/qdax_pga_me.py` (QDax's old-pins venv) with the settings of
+`agents/{pga_me,map_elites}_halfcheetah_uni_cpu.toml`: spring, 100-step episodes,
+64 offspring per iteration (PGA-ME: 32 iso-line + 31 PG + the greedy actor; MAP-Elites:
+64 iso-line), CVT 256, `--iterations` iterations (500: 32,064 evaluations), TD3 of the
+light schedule (50 critic steps, 20 PG steps, batches of 64, a buffer of 100k).
+
+Every finished run is written to `--out` at once (`benchmarks/results/
+qdax_pga_me_vs_map_elites.json`), so a stopped invocation keeps its runs and a later one
+with `--first-seed` adds seeds. The summary compares the algorithms at the evaluations
+all runs reached; the plot `docs/qdax_pga_me_vs_map_elites_halfcheetah_uni_evaluations.png`
+sets QDax's curves beside qdrl's runs of the same specs from `--qdrl-runs`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from compare_qdax_map_elites import _json_from
+
+HERE = Path(__file__).resolve().parent
+ALGORITHMS = ("pga_me", "map_elites")
+
+
+def at_evaluations(run: dict[str, Any], evaluations: int) -> dict[str, Any]:
+    """A run's QD figures at its last logged row within `evaluations`."""
+    return [r for r in run["rows"] if r["evaluations"] <= evaluations][-1]
+
+
+def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per algorithm, the mean figures at the evaluations all runs reached, and PGA-ME's ratio."""
+    budget = min(r["rows"][-1]["evaluations"] for r in runs)
+    summary: dict[str, Any] = {"evaluations": budget}
+    for algorithm in ALGORITHMS:
+        rs = [r for r in runs if r["algorithm"] == algorithm]
+        if not rs:
+            continue
+        rows = [at_evaluations(r, budget) for r in rs]
+        summary[algorithm] = {
+            k: round(statistics.mean(row[k] for row in rows), 3) for k in ("qd_score", "coverage", "max_fitness")
+        } | {
+            "env_steps_per_s": round(statistics.mean(r["env_steps_per_s"] for r in rs), 1),
+            "seeds": sorted(r["seed"] for r in rs),
+        }
+    if all(a in summary for a in ALGORITHMS):
+        summary["qd_score_ratio"] = round(summary["pga_me"]["qd_score"] / summary["map_elites"]["qd_score"], 3)
+    return summary
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--qdax-python", required=True)
+    p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--first-seed", type=int, default=0)
+    p.add_argument("--iterations", type=int, default=500)
+    p.add_argument("--log-every", type=int, default=50)
+    p.add_argument("--out", default=str(HERE / "results" / "qdax_pga_me_vs_map_elites.json"))
+    p.add_argument("--qdrl-runs", default=str(HERE / "results" / "pga_me_vs_map_elites_1000.json"),
+                   help="a results file of benchmarks/pga_me_vs_map_elites.py whose halfcheetah_uni runs are plotted beside")
+    p.add_argument("--plots", default=str(HERE.parent / "docs"))
+    args = p.parse_args()
+    if args.seeds < 0 or args.iterations < 1 or args.log_every < 1:
+        p.error(f"expected --seeds >= 0, --iterations >= 1, --log-every >= 1; got "
+                f"{args.seeds}, {args.iterations}, {args.log_every}")
+
+    from qdrl import plotting
+    from qdrl.bench import machine
+
+    out = Path(args.out)
+    previous = json.loads(out.read_text()) if out.exists() else {}
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    runs: list[dict[str, Any]] = [r for r in previous.get("runs", []) if r["seed"] not in seeds]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
+    env["JAX_PLATFORMS"] = "cpu"
+
+    def write() -> dict[str, Any]:
+        summary = summarise(runs) if runs else {}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"machine": machine(), "task": "halfcheetah_uni", "summary": summary,
+                                   "runs": runs}, indent=2) + "\n")
+        return summary
+
+    for seed in seeds:
+        for algorithm in ALGORITHMS if seed % 2 == 0 else ALGORITHMS[::-1]:
+            cmd = [args.qdax_python, str(HERE / "qdax_pga_me.py"), "--algorithm", algorithm, "--seed", str(seed),
+                   "--iterations", str(args.iterations), "--log-every", str(args.log_every)]
+            rec = _json_from(subprocess.run(cmd, capture_output=True, text=True, check=True, env=env).stdout)
+            runs.append(rec)
+            write()
+            print(json.dumps({k: v for k, v in rec.items() if k != "rows"}), file=sys.stderr)
+    summary = write()
+    curves = {f"QDax {r['algorithm']} seed {r['seed']}": r["rows"] for r in runs}
+    qdrl_file = Path(args.qdrl_runs)
+    if qdrl_file.exists():
+        for r in json.loads(qdrl_file.read_text())["runs"]:
+            if r["task"] == "halfcheetah_uni":
+                curves[f"qdrl {r['algorithm']} seed {r['seed']}"] = r["rows"]
+    plotting.plot_comparison(
+        curves, "qd_score", "evaluations",
+        Path(args.plots) / f"{out.stem}_halfcheetah_uni_evaluations.png",
+        title="QDax 0.5.0 PGA-ME and MAP-Elites (and qdrl's)\non halfcheetah_uni (CPU specs)",
+    )
+    print(json.dumps(summary, indent=2))
+
+
+if __name__ == "__main__":
+    main()
