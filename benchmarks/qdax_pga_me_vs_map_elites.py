@@ -14,7 +14,7 @@ Every finished run is written to `--out` at once (`benchmarks/results/
 qdax_pga_me_vs_map_elites.json`), so a stopped invocation keeps its runs and a later one
 with `--first-seed` adds seeds. The summary compares the algorithms at the evaluations
 all runs reached; the plot `docs/qdax_pga_me_vs_map_elites_halfcheetah_uni_evaluations.png`
-sets QDax's curves beside qdrl's runs of the same specs from `--qdrl-runs`.
+sets QDax's mean curves beside the mean curves of qdrl's runs of the same specs from `--qdrl-runs`.
 """
 
 from __future__ import annotations
@@ -37,6 +37,18 @@ ALGORITHMS = ("pga_me", "map_elites")
 def at_evaluations(run: dict[str, Any], evaluations: int) -> dict[str, Any]:
     """A run's QD figures at its last logged row within `evaluations`."""
     return [r for r in run["rows"] if r["evaluations"] <= evaluations][-1]
+
+
+def mean_curve(runs_rows: list[list[dict[str, Any]]]) -> list[dict[str, float]]:
+    """The mean QD figures over runs at the evaluations every run logged."""
+    common = set.intersection(*({r["evaluations"] for r in rows} for rows in runs_rows))
+    return [
+        {"evaluations": e} | {
+            k: statistics.mean(next(r[k] for r in rows if r["evaluations"] == e) for rows in runs_rows)
+            for k in ("qd_score", "coverage", "max_fitness")
+        }
+        for e in sorted(common)
+    ]
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -101,16 +113,16 @@ def main() -> None:
             write()
             print(json.dumps({k: v for k, v in rec.items() if k != "rows"}), file=sys.stderr)
     summary = write()
-    curves = {f"QDax {r['algorithm']} seed {r['seed']}": r["rows"] for r in runs}
+    seeds_run = sorted({r["seed"] for r in runs})
+    curves = {f"QDax {a}": mean_curve([r["rows"] for r in runs if r["algorithm"] == a]) for a in ALGORITHMS}
     qdrl_file = Path(args.qdrl_runs)
     if qdrl_file.exists():
-        for r in json.loads(qdrl_file.read_text())["runs"]:
-            if r["task"] == "halfcheetah_uni":
-                curves[f"qdrl {r['algorithm']} seed {r['seed']}"] = r["rows"]
+        qdrl_runs = [r for r in json.loads(qdrl_file.read_text())["runs"] if r["task"] == "halfcheetah_uni"]
+        curves |= {f"qdrl {a}": mean_curve([r["rows"] for r in qdrl_runs if r["algorithm"] == a]) for a in ALGORITHMS}
     plotting.plot_comparison(
         curves, "qd_score", "evaluations",
         Path(args.plots) / f"{out.stem}_halfcheetah_uni_evaluations.png",
-        title="QDax 0.5.0 PGA-ME and MAP-Elites (and qdrl's)\non halfcheetah_uni (CPU specs)",
+        title=f"PGA-ME and MAP-Elites, QDax 0.5.0 and qdrl\n(halfcheetah_uni, CPU specs, {len(seeds_run)}-seed means)",
     )
     print(json.dumps(summary, indent=2))
 
