@@ -22,6 +22,8 @@ shows what that costs. `--iterations` overrides both specs' `qd.num_iterations`.
 
 `--variant pga_me:cpu_paper_td3` runs `agents/pga_me_<task>_cpu_paper_td3.toml`
 instead (the same task and archive, the paper's TD3 schedule).
+`--full` runs the full-size specs `agents/<algorithm>_<task>.toml` (the papers'
+settings: 1000-step episodes, 1024 cells, 4000 iterations of 100; a GPU budget).
 
 Writes `benchmarks/results/pga_me_vs_map_elites.json` (every run's metric rows,
 final figures and the per-task means; where a task's runs have different lengths,
@@ -51,7 +53,7 @@ def run_one(
     """One `qdrl run` of `agents/<algorithm>_<task>_<variant>.toml` (the `extra` overrides last)."""
     from qdrl.experiment import run_spec
 
-    spec = ROOT / "agents" / f"{algorithm}_{task}_{variant}.toml"
+    spec = ROOT / "agents" / (f"{algorithm}_{task}_{variant}.toml" if variant else f"{algorithm}_{task}.toml")
     if not spec.exists():
         raise SystemExit(f"no spec {spec.relative_to(ROOT)} (algorithm {algorithm!r}, variant {variant!r})")
     overrides = [f"experiment.seed={seed}", "log.progress=false", "log.plots=false"]
@@ -125,6 +127,9 @@ def main() -> None:
     p.add_argument("--variant", nargs="*", default=[], metavar="ALGORITHM:NAME",
                    help="run agents/<algorithm>_<task>_<NAME>.toml for that algorithm instead of _cpu, "
                         "e.g. pga_me:cpu_paper_td3")
+    p.add_argument("--full", action="store_true",
+                   help="run every algorithm's full-size spec agents/<algorithm>_<task>.toml (the papers' "
+                        "settings: 1000-step episodes, 1024 cells; a GPU budget) instead of _cpu")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "pga_me_vs_map_elites.json"))
     p.add_argument("--plots", default=str(ROOT / "docs"))
     args = p.parse_args()
@@ -142,7 +147,7 @@ def main() -> None:
         if name not in extra or "=" not in override:
             p.error(f"--override: expected ALGORITHM:KEY=VALUE with ALGORITHM in {list(algorithms)}, got {item!r}")
         extra[name].append(override)
-    variants: dict[str, str] = dict.fromkeys(algorithms, "cpu")
+    variants: dict[str, str] = dict.fromkeys(algorithms, "" if args.full else "cpu")
     for item in args.variant:
         name, _, variant = item.partition(":")
         if name not in variants or not variant:
