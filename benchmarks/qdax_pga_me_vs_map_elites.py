@@ -114,11 +114,14 @@ def main() -> None:
             print(json.dumps({k: v for k, v in rec.items() if k != "rows"}), file=sys.stderr)
     summary = write()
     seeds_run = sorted({r["seed"] for r in runs})
-    curves = {f"QDax {a}": mean_curve([r["rows"] for r in runs if r["algorithm"] == a]) for a in ALGORITHMS}
+    def means(library: str, library_runs: list[dict[str, Any]]) -> dict[str, list[dict[str, float]]]:
+        by_algorithm = {a: [r["rows"] for r in library_runs if r["algorithm"] == a] for a in ALGORITHMS}
+        return {f"{library} {a}": mean_curve(rows) for a, rows in by_algorithm.items() if rows}
+
+    curves = means("QDax", runs)
     qdrl_file = Path(args.qdrl_runs)
     if qdrl_file.exists():
-        qdrl_runs = [r for r in json.loads(qdrl_file.read_text())["runs"] if r["task"] == "halfcheetah_uni"]
-        curves |= {f"qdrl {a}": mean_curve([r["rows"] for r in qdrl_runs if r["algorithm"] == a]) for a in ALGORITHMS}
+        curves |= means("qdrl", [r for r in json.loads(qdrl_file.read_text())["runs"] if r["task"] == "halfcheetah_uni"])
     plotting.plot_comparison(
         curves, "qd_score", "evaluations",
         Path(args.plots) / f"{out.stem}_halfcheetah_uni_evaluations.png",
