@@ -50,7 +50,8 @@ def run_one(
     algorithm: str, task: str, seed: int, iterations: int | None, log_every: int | None,
     extra: list[str] | None = None, variant: str = "cpu",
 ) -> dict[str, Any]:
-    """One `qdrl run` of `agents/<algorithm>_<task>_<variant>.toml` (the `extra` overrides last)."""
+    """One `qdrl run` of `agents/<algorithm>_<task>_<variant>.toml`, or of `agents/<algorithm>_<task>.toml`
+    for the empty variant (the full-size spec); the `extra` overrides go last."""
     from qdrl.experiment import run_spec
 
     spec = ROOT / "agents" / (f"{algorithm}_{task}_{variant}.toml" if variant else f"{algorithm}_{task}.toml")

@@ -96,27 +96,27 @@ def main() -> None:
     low, high = env.descriptor_limits
     centroids = compute_cvt_centroids(env.descriptor_length, args.cvt_samples, args.cells, low, high, cvt_key)
     offset = environments.reward_offset[args.task] * args.episode_length
-    config = PGAMEConfig(
-        env_batch_size=args.batch,
-        proportion_mutation_ga=0.5,
-        num_critic_training_steps=args.critic_steps,
-        num_pg_training_steps=args.pg_steps,
-        replay_buffer_size=args.buffer,
-        critic_hidden_layer_size=(256, 256),
-        critic_learning_rate=3e-4,
-        greedy_learning_rate=3e-4,
-        policy_learning_rate=1e-3,
-        noise_clip=0.5,
-        policy_noise=0.2,
-        discount=0.99,
-        reward_scaling=1.0,
-        batch_size=args.train_batch,
-        soft_tau_update=0.005,
-        policy_delay=2,
-    )
     variation = functools.partial(isoline_variation, iso_sigma=0.005, line_sigma=0.05)
     emitter: PGAMEEmitter | MixingEmitter
     if args.algorithm == "pga_me":
+        config = PGAMEConfig(
+            env_batch_size=args.batch,
+            proportion_mutation_ga=0.5,
+            num_critic_training_steps=args.critic_steps,
+            num_pg_training_steps=args.pg_steps,
+            replay_buffer_size=args.buffer,
+            critic_hidden_layer_size=(256, 256),
+            critic_learning_rate=3e-4,
+            greedy_learning_rate=3e-4,
+            policy_learning_rate=1e-3,
+            noise_clip=0.5,
+            policy_noise=0.2,
+            discount=0.99,
+            reward_scaling=1.0,
+            batch_size=args.train_batch,
+            soft_tau_update=0.005,
+            policy_delay=2,
+        )
         emitter = PGAMEEmitter(config=config, policy_network=policy_network, env=env, variation_fn=variation)
     else:
         emitter = MixingEmitter(

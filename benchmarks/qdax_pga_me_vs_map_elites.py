@@ -1,6 +1,10 @@
 """QDax 0.5.0's own PGA-ME against its own MAP-Elites on halfcheetah_uni, at the CPU budget.
 
-    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /work/qdax-old-venv/bin/python --seeds 2
+    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /work/qdax-old-venv/bin/python --seeds 3
+    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /work/qdax-old-venv/bin/python \
+        --first-seed 3 --seeds 2
+
+(the recorded file: seeds 0-2, then seeds 3 and 4 added; `--seeds 0` only re-summarises and re-plots).
 
 The reference check for `benchmarks/pga_me_vs_map_elites.py`: does the reference
 implementation's PGA-ME beat MAP-Elites at the budget qdrl's CPU comparison runs at?
@@ -49,6 +53,12 @@ def mean_curve(runs_rows: list[list[dict[str, Any]]]) -> list[dict[str, float]]:
         }
         for e in sorted(common)
     ]
+
+
+def mean_curves(library: str, runs: list[dict[str, Any]]) -> dict[str, list[dict[str, float]]]:
+    """One mean curve per algorithm that has runs, labelled with the library and the seed count."""
+    by_algorithm = {a: [r["rows"] for r in runs if r["algorithm"] == a] for a in ALGORITHMS}
+    return {f"{library} {a} ({len(rows)} seeds)": mean_curve(rows) for a, rows in by_algorithm.items() if rows}
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -113,14 +123,11 @@ def main() -> None:
             write()
             print(json.dumps({k: v for k, v in rec.items() if k != "rows"}), file=sys.stderr)
     summary = write()
-    def means(library: str, library_runs: list[dict[str, Any]]) -> dict[str, list[dict[str, float]]]:
-        by_algorithm = {a: [r["rows"] for r in library_runs if r["algorithm"] == a] for a in ALGORITHMS}
-        return {f"{library} {a} ({len(rows)} seeds)": mean_curve(rows) for a, rows in by_algorithm.items() if rows}
-
-    curves = means("QDax", runs)
+    curves = mean_curves("QDax", runs)
     qdrl_file = Path(args.qdrl_runs)
     if qdrl_file.exists():
-        curves |= means("qdrl", [r for r in json.loads(qdrl_file.read_text())["runs"] if r["task"] == "halfcheetah_uni"])
+        qdrl_runs = json.loads(qdrl_file.read_text())["runs"]
+        curves |= mean_curves("qdrl", [r for r in qdrl_runs if r["task"] == "halfcheetah_uni"])
     plotting.plot_comparison(
         curves, "qd_score", "evaluations",
         Path(args.plots) / f"{out.stem}_halfcheetah_uni_evaluations.png",
