@@ -186,11 +186,15 @@ class MEPBTRun(QDRun):
 
         if "emitter" in spec:
             raise ConfigError("emitter: ME-PBT takes no [emitter] section; its GA settings are in [me_pbt]")
-        super().__init__({k: v for k, v in spec.items() if k not in ("agent", "me_pbt")}, exp, "cvt")
+        me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
+        super().__init__(
+            {k: v for k, v in spec.items() if k not in ("agent", "me_pbt")}, exp, "cvt",
+            eval_batch=me_cfg.ga_batch_size + me_cfg.population_size,
+        )
         del self.sections["emitter"]
         config_cls, make_agent = AGENTS[agent_name]
         agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
-        self.me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
+        self.me_cfg = me_cfg
         self.sections.update({"agent": agent_cfg, "me_pbt": self.me_cfg})
         task = self._task
         if task.env is None or task.policy_scoring is None:

@@ -91,8 +91,14 @@ class QDConfig:
             )
 
 
-def build_task(data: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
-    """The task named by `data["name"]`, its other keys checked against the builder's signature."""
+def build_task(
+    data: Mapping[str, Any], defaults: Mapping[str, Any] | None = None
+) -> tuple[Any, dict[str, Any]]:
+    """The task named by `data["name"]`, its other keys checked against the builder's signature.
+
+    `defaults` fill the keys that the builder takes and `data` does not give (e.g. a
+    policy task's `eval_batch`, from the run's batch size).
+    """
     from qdrl.tasks import TASKS
 
     if "name" not in data:
@@ -111,6 +117,9 @@ def build_task(data: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
         if key not in params:
             raise ConfigError(f"task.{key}: unknown key for task {name!r}; expected one of {sorted(params)}")
         kwargs[key] = coerce(value, hints.get(key, type(value)), f"task.{key}")
+    for key, value in (defaults or {}).items():
+        if key in params and key not in kwargs:
+            kwargs[key] = value
     try:
         task = builder(**kwargs)
     except ValueError as e:
@@ -129,13 +138,24 @@ class QDRun:
 
     progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness", "evaluations_per_s")
 
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig, default_kind: str) -> None:
+    def __init__(
+        self,
+        spec: Mapping[str, Any],
+        exp: ExperimentConfig,
+        default_kind: str,
+        eval_batch: int | None = None,
+    ) -> None:
+        """`eval_batch`: the batch a policy task rolls out at once (default: emitter.batch_size)."""
         rep_data = dict(spec.get("repertoire", {}))
         rep_data.setdefault("kind", default_kind)
-        self._task, task_table = build_task(spec.get("task", {"name": "arm"}))
         rep_cfg = build(RepertoireConfig, rep_data, "repertoire")
         emitter_cfg = build(EmitterConfig, spec.get("emitter", {}), "emitter")
         qd_cfg = build(QDConfig, spec.get("qd", {}), "qd")
+        if eval_batch is None:
+            eval_batch = emitter_cfg.batch_size
+        self._task, task_table = build_task(
+            spec.get("task", {"name": "arm"}), defaults={"eval_batch": eval_batch}
+        )
         dim = len(self._task.descriptor_low)
         if rep_cfg.kind == "grid" and len(rep_cfg.grid_shape) != dim:
             raise ConfigError(
@@ -515,9 +535,10 @@ class MEESRun(QDRun):
     def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
         if "emitter" in spec:
             raise ConfigError("emitter: ME-ES has no GA emitter; its settings are in [es]")
-        super().__init__(spec, exp, default_kind="cvt")
+        es_cfg = build(ESSection, spec.get("es", {}), "es")
+        super().__init__(spec, exp, default_kind="cvt", eval_batch=es_cfg.population_size + 1)
         del self.sections["emitter"]
-        self.es_cfg = build(ESSection, spec.get("es", {}), "es")
+        self.es_cfg = es_cfg
         self.sections["es"] = self.es_cfg
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:

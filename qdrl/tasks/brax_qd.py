@@ -57,7 +57,7 @@ from collections.abc import Sequence
 
 from qdrl.envs.brax import BraxEnv
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import EpisodeDescriptor, policy_task
+from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, EpisodeDescriptor, policy_task
 
 # QDax `reward_offset` (qdax/tasks/brax/v2/__init__.py; anttrap and antmaze from
 # qdax/environments/__init__.py).
@@ -95,19 +95,23 @@ def brax_policy_task(
     descriptor_high: Sequence[float],
     qd_offset: float,
     policy_hidden: Sequence[int] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """A `Task` whose genotypes are policies acting in `env` for one episode each.
 
     The episode's state descriptor ("final" or "mean" over its steps) is clipped to
-    the descriptor bounds; the fitness is the episode return.
+    the descriptor bounds; the fitness is the episode return. Episodes are rolled
+    out in blocks of `eval_batch` (`qdrl.tasks.policy.policy_scoring_fn`).
     """
     return policy_task(
-        name, env, descriptor, descriptor_low, descriptor_high, qd_offset, policy_hidden
+        name, env, descriptor, descriptor_low, descriptor_high, qd_offset, policy_hidden,
+        eval_batch=eval_batch,
     )
 
 
 def _uni(
-    task: str, robot: str, episode_length: int, backend: str, policy_hidden: Sequence[int]
+    task: str, robot: str, episode_length: int, backend: str, policy_hidden: Sequence[int],
+    eval_batch: int,
 ) -> Task:
     env = BraxEnv(robot, backend, episode_length, state_descriptor="feet_contact")
     n_feet = env.descriptor_size
@@ -119,15 +123,18 @@ def _uni(
         (1.0,) * n_feet,
         -REWARD_OFFSETS[task] * episode_length,
         policy_hidden,
+        eval_batch,
     )
 
 
 def _omni(
-    task: str, robot: str, episode_length: int, backend: str, policy_hidden: Sequence[int]
+    task: str, robot: str, episode_length: int, backend: str, policy_hidden: Sequence[int],
+    eval_batch: int,
 ) -> Task:
     env = BraxEnv(robot, backend, episode_length, state_descriptor="xy", reward="no_forward")
     return brax_policy_task(
-        task, env, "final", *OMNI_BOUNDS, -REWARD_OFFSETS[task] * episode_length, policy_hidden
+        task, env, "final", *OMNI_BOUNDS, -REWARD_OFFSETS[task] * episode_length, policy_hidden,
+        eval_batch,
     )
 
 
@@ -135,6 +142,7 @@ def ant_uni(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Ant, feet-contact rates of its 4 feet in [0, 1]^4; fitness = brax's ant reward summed.
 
@@ -142,52 +150,56 @@ def ant_uni(
     cost is 0). The episode terminates when the torso leaves z in [0.2, 1].
     Default backend spring (fastest; QDax's default).
     """
-    return _uni("ant_uni", "ant", episode_length, backend, policy_hidden)
+    return _uni("ant_uni", "ant", episode_length, backend, policy_hidden, eval_batch)
 
 
 def halfcheetah_uni(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """HalfCheetah, feet-contact rates (back foot, front foot) in [0, 1]^2; fitness = its reward.
 
     Reward per step: forward velocity - 0.1 |a|^2; never terminates. Default
     backend spring (halfcheetah on mjx with brax's default solver is 7x slower).
     """
-    return _uni("halfcheetah_uni", "halfcheetah", episode_length, backend, policy_hidden)
+    return _uni("halfcheetah_uni", "halfcheetah", episode_length, backend, policy_hidden, eval_batch)
 
 
 def walker2d_uni(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Walker2d, feet-contact rates (right foot, left foot) in [0, 1]^2; fitness = its reward.
 
     Reward per step: forward velocity + 1 (survival) - 0.001 |a|^2; terminates
     when the torso falls or tilts. Default backend spring (fastest).
     """
-    return _uni("walker2d_uni", "walker2d", episode_length, backend, policy_hidden)
+    return _uni("walker2d_uni", "walker2d", episode_length, backend, policy_hidden, eval_batch)
 
 
 def hopper_uni(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Hopper, contact rate of its foot in [0, 1]; fitness = its reward.
 
     Reward per step: forward velocity + 1 (survival) - 0.001 |a|^2; terminates
     when unhealthy. Default backend spring (fastest).
     """
-    return _uni("hopper_uni", "hopper", episode_length, backend, policy_hidden)
+    return _uni("hopper_uni", "hopper", episode_length, backend, policy_hidden, eval_batch)
 
 
 def humanoid_uni(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Humanoid, contact rates of its feet (right, left; the shin links) in [0, 1]^2.
 
@@ -195,39 +207,42 @@ def humanoid_uni(
     + 5 (survival) - 0.1 |ctrl|^2; terminates when the torso leaves z in [1, 2].
     Default backend spring (fastest; QDax's default).
     """
-    return _uni("humanoid_uni", "humanoid", episode_length, backend, policy_hidden)
+    return _uni("humanoid_uni", "humanoid", episode_length, backend, policy_hidden, eval_batch)
 
 
 def ant_omni(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Ant, final torso x-y in [-30, 30]^2; fitness = survival - control cost (no forward term).
 
     Reward per step: brax's ant reward minus its `reward_forward` metric, i.e.
     1 - 0.5 |a|^2. Default backend spring (fastest; QDax's default).
     """
-    return _omni("ant_omni", "ant", episode_length, backend, policy_hidden)
+    return _omni("ant_omni", "ant", episode_length, backend, policy_hidden, eval_batch)
 
 
 def humanoid_omni(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Humanoid, final torso x-y in [-30, 30]^2; fitness = survival - control cost.
 
     Reward per step: brax's humanoid reward minus its `reward_linvel` metric, i.e.
     5 - 0.1 |ctrl|^2. Default backend spring (fastest; QDax's default).
     """
-    return _omni("humanoid_omni", "humanoid", episode_length, backend, policy_hidden)
+    return _omni("humanoid_omni", "humanoid", episode_length, backend, policy_hidden, eval_batch)
 
 
 def ant_trap(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """QDax's AntTrap: final torso x-y in [0, 30] x [-8, 8]; fitness = the ant's reward.
 
@@ -244,6 +259,7 @@ def ant_trap(
         *TRAP_BOUNDS,
         -REWARD_OFFSETS["ant_trap"] * episode_length,
         policy_hidden,
+        eval_batch,
     )
 
 
@@ -251,6 +267,7 @@ def ant_maze(
     episode_length: int = 1000,
     backend: str = DEFAULT_BACKEND,
     policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """QDax's AntMaze: final torso x-y in [-5, 40]^2; fitness = -sum over steps of the distance to the target.
 
@@ -267,6 +284,7 @@ def ant_maze(
         *MAZE_BOUNDS,
         -MAZE_MAX_DISTANCE * episode_length,
         policy_hidden,
+        eval_batch,
     )
 
 

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from qdrl.envs.jumanji import JumanjiEnv, snake_env
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import EpisodeDescriptor, policy_task
+from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, EpisodeDescriptor, policy_task
 
 
 def jumanji_task(
@@ -26,6 +26,7 @@ def jumanji_task(
     qd_offset: float = 0.0,
     max_fitness: float | None = None,
     name: str | None = None,
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """A QD task of MLP policies on a wrapped jumanji env: fitness = episode return.
 
@@ -37,6 +38,7 @@ def jumanji_task(
       qd_offset: a bound below every return (0 for non-negative rewards).
       max_fitness: the best return, when known.
       name: the task's name (default: the env's).
+      eval_batch: episodes rolled out together (`qdrl.tasks.policy.policy_scoring_fn`).
     """
     return policy_task(
         env.name if name is None else name,
@@ -48,6 +50,7 @@ def jumanji_task(
         policy_hidden,
         max_fitness=max_fitness,
         clip_descriptors=False,
+        eval_batch=eval_batch,
     )
 
 
@@ -57,6 +60,7 @@ def snake(
     num_rows: int = 12,
     num_cols: int = 12,
     start_seed: int | None = 0,
+    eval_batch: int = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Snake (jumanji Snake-v1): fitness = fruits eaten, descriptor = mean head position.
 
@@ -84,4 +88,5 @@ def snake(
         descriptor="mean",
         qd_offset=0.0,
         name="snake",
+        eval_batch=eval_batch,
     )

@@ -14,10 +14,14 @@ import math
 
 from qdrl.envs.point_maze import PointMazeEnv
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import policy_task
+from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, policy_task
 
 
-def point_maze(episode_length: int = 100, policy_hidden: tuple[int, ...] = (64, 64)) -> Task:
+def point_maze(
+    episode_length: int = 100,
+    policy_hidden: tuple[int, ...] = (64, 64),
+    eval_batch: int = DEFAULT_EVAL_BATCH,
+) -> Task:
     """Point maze with MLP policies (QDax `pointmaze`): fitness = return, descriptor = final x-y.
 
     `qd_offset` is -2 sqrt(2) x `episode_length`: no point of the arena is farther
@@ -33,4 +37,5 @@ def point_maze(episode_length: int = 100, policy_hidden: tuple[int, ...] = (64, 
         qd_offset=-2.0 * math.sqrt(2.0) * episode_length,
         policy_hidden=policy_hidden,
         clip_descriptors=False,
+        eval_batch=eval_batch,
     )

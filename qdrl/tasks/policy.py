@@ -2,7 +2,18 @@
 
 Genotypes are batched haiku parameter trees of a deterministic policy; policy i
 acts in environment i of a batch, through the one rollout loop of qdrl
-(`qdrl.rollout.run_episodes`). Fitness is the episode return (steps after the
+(`qdrl.rollout.run_episodes`).
+
+Batches are evaluated in blocks of a fixed width (`eval_batch`): the batch is
+padded to a multiple of it and the blocks are rolled out one after the other
+(`lax.map`). XLA compiles a batched physics step differently for different batch
+sizes (on the CPU, halfcheetah's spring pipeline gives results that differ in the
+last bits for batches of 1, 2-4, 8-65, 128-130 and 256), and the contact dynamics
+of the robots are chaotic: a relative change of 1e-7 in a policy's parameters
+moves its 100-step return by several units. Without a fixed width, the same
+policy scored alone or in another batch gets another fitness and descriptor; with
+it, each policy sees exactly the same computation wherever it sits in whichever
+batch (tests/tasks/test_policy_eval.py). Fitness is the episode return (steps after the
 episode ended are masked), the descriptor is computed from the trajectory of
 state descriptors (its last value or its mean over the episode), and the
 transitions are handed back in `extras["transitions"]` (with `extras["mask"]`)
@@ -26,11 +37,14 @@ import jax.numpy as jnp
 from qdrl import nets
 from qdrl.envs.base import Env
 from qdrl.qd.base import Evaluation, ScoringFn
-from qdrl.rollout import run_episodes
+from qdrl.rollout import Episodes, run_episodes
 from qdrl.tasks.base import Task
 from qdrl.types import Genotype, Params, PRNGKey
 
 EpisodeDescriptor = Literal["final", "mean"]
+
+# Episodes rolled out together when a task is built without the run's batch size.
+DEFAULT_EVAL_BATCH = 64
 
 
 def policy_network(action_size: int, hidden: Sequence[int] = (64, 64), act: str = "tanh") -> hk.Transformed:
@@ -58,6 +72,7 @@ def policy_scoring_fn(
     num_steps: int | None = None,
     descriptor_fn: Callable[[jax.Array], jax.Array] | None = None,
     fixed_start: bool = True,
+    eval_batch: int | None = DEFAULT_EVAL_BATCH,
 ) -> ScoringFn:
     """A scoring function of batched policy parameters on `env`.
 
@@ -72,18 +87,32 @@ def policy_scoring_fn(
         deterministic evaluation, the QD-RL benchmarks' convention), so a policy's
         fitness and descriptor do not depend on the evaluation key; False gives
         each episode its own random initial state.
+      eval_batch: episodes rolled out together (see the module docstring): a batch
+        of n policies is padded to a multiple of it and evaluated block by block,
+        so a policy's fitness and descriptor do not depend on the batch it is in.
+        Set it to the run's batch size (the runners do) to pay no padding; None
+        rolls out any batch at once, with batch-dependent numerics.
     """
     if descriptor not in ("final", "mean"):
         raise ValueError(f"descriptor: expected 'final' or 'mean', got {descriptor!r}")
+    if eval_batch is not None and eval_batch < 1:
+        raise ValueError(f"eval_batch: expected a positive integer or None, got {eval_batch}")
+    start = jax.random.PRNGKey(0) if fixed_start else None
 
-    def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
+    def rollout(genotypes: Genotype, key: PRNGKey) -> Episodes:
         n = jax.tree.leaves(genotypes)[0].shape[0]
 
         def policy(obs: jax.Array, _: PRNGKey) -> jax.Array:
             return jax.vmap(network.apply)(genotypes, obs)
 
-        start = jax.random.PRNGKey(0) if fixed_start else None
-        episodes = run_episodes(env, policy, key, n, num_steps, start_key=start)
+        return run_episodes(env, policy, key, n, num_steps, start_key=start)
+
+    def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
+        n = jax.tree.leaves(genotypes)[0].shape[0]
+        if eval_batch is None:
+            episodes = rollout(genotypes, key)
+        else:
+            episodes = _in_blocks(rollout, genotypes, key, n, eval_batch)
         desc = episodes.final_desc if descriptor == "final" else episodes.mean_desc
         if descriptor_fn is not None:
             desc = descriptor_fn(desc)
@@ -102,6 +131,47 @@ def policy_scoring_fn(
     return scoring_fn
 
 
+def _in_blocks(
+    rollout: Callable[[Genotype, PRNGKey], Episodes],
+    genotypes: Genotype,
+    key: PRNGKey,
+    n: int,
+    width: int,
+) -> Episodes:
+    """`rollout` of n policies as ceil(n / width) blocks of `width`, one after the other.
+
+    The last block is padded with copies of the first policy, whose episodes are
+    dropped. Every block is the same computation, so a policy's episode does not
+    depend on n or on its place in the batch.
+    """
+    num_blocks = -(-n // width)
+    pad = num_blocks * width - n
+
+    def blocks(x: jax.Array) -> jax.Array:
+        if pad:
+            x = jnp.concatenate([x, jnp.broadcast_to(x[:1], (pad, *x.shape[1:]))])
+        return x.reshape(num_blocks, width, *x.shape[1:])
+
+    keys = jax.random.split(key, num_blocks)
+    out = jax.lax.map(lambda b: rollout(*b), (jax.tree.map(blocks, genotypes), keys))
+
+    def batch_major(x: jax.Array) -> jax.Array:  # (blocks, width, ...) -> (n, ...)
+        return x.reshape(num_blocks * width, *x.shape[2:])[:n]
+
+    def time_major(x: jax.Array) -> jax.Array:  # (blocks, T, width, ...) -> (T, n, ...)
+        x = jnp.moveaxis(x, 0, 1)
+        return x.reshape(x.shape[0], num_blocks * width, *x.shape[3:])[:, :n]
+
+    return Episodes(
+        returns=batch_major(out.returns),
+        lengths=batch_major(out.lengths),
+        final_desc=batch_major(out.final_desc),
+        mean_desc=batch_major(out.mean_desc),
+        transitions=jax.tree.map(time_major, out.transitions),
+        mask=time_major(out.mask),
+    )
+
+
 def policy_task(
     name: str,
     env: Env,
@@ -112,12 +182,14 @@ def policy_task(
     policy_hidden: Sequence[int] = (64, 64),
     max_fitness: float | None = None,
     clip_descriptors: bool = True,
+    eval_batch: int | None = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """A `Task` whose genotypes are MLP policies acting in `env` for one episode each.
 
     Fitness is the episode return; the descriptor is the episode's state descriptor
     ("final" or "mean" over its steps), clipped to the bounds if `clip_descriptors`.
     Genotypes are unbounded parameter trees (`genotype_low/high` = -inf/inf).
+    Episodes are rolled out in blocks of `eval_batch` (see `policy_scoring_fn`).
     """
     low = jnp.asarray(descriptor_low, jnp.float32)
     high = jnp.asarray(descriptor_high, jnp.float32)
@@ -139,7 +211,10 @@ def policy_task(
         return jnp.clip(desc, low, high)
 
     def scoring_for(policy: Any) -> ScoringFn:
-        return policy_scoring_fn(env, policy, descriptor, descriptor_fn=clip if clip_descriptors else None)
+        return policy_scoring_fn(
+            env, policy, descriptor, descriptor_fn=clip if clip_descriptors else None,
+            eval_batch=eval_batch,
+        )
 
     return Task(
         name=name,

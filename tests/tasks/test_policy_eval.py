@@ -1,0 +1,54 @@
+"""A policy's fitness and descriptor do not depend on the batch it is evaluated in.
+
+halfcheetah's contact dynamics are chaotic (a relative change of 1e-7 in the
+parameters moves a 100-step return by several units) and XLA compiles the batched
+physics differently for different batch sizes, so without the fixed evaluation
+width of `qdrl.tasks.policy.policy_scoring_fn` a policy scored alone got another
+fitness than in its batch (issue: every one of 112 stored elites differed).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import numpy as np
+
+from qdrl.tasks import brax_qd
+
+EPISODE = 40
+WIDTH = 4
+
+
+def take(tree: Any, idx: list[int]) -> Any:
+    return jax.tree.map(lambda x: x[np.asarray(idx)], tree)
+
+
+def test_scores_do_not_depend_on_the_batch() -> None:
+    task = brax_qd.halfcheetah_uni(episode_length=EPISODE, eval_batch=WIDTH)
+    score = jax.jit(task.scoring_fn)
+    key = jax.random.PRNGKey(1)
+    policies = task.init_genotypes(jax.random.PRNGKey(3), 7)
+
+    together = score(policies, key)  # two blocks, the second padded
+    fit, desc = np.asarray(together.fitnesses), np.asarray(together.descriptors)
+    assert fit.shape == (7,) and desc.shape == (7, 2)
+    assert np.all(np.isfinite(fit)) and len(np.unique(fit)) == 7
+    assert np.asarray(together.extras["transitions"].obs).shape[:2] == (EPISODE, 7)
+    assert int(together.env_steps) == 7 * EPISODE
+
+    for i in (0, 3, 6):  # one by one: one padded block each
+        alone = score(take(policies, [i]), key)
+        np.testing.assert_array_equal(np.asarray(alone.fitnesses), fit[i : i + 1])
+        np.testing.assert_array_equal(np.asarray(alone.descriptors), desc[i : i + 1])
+
+    # Another order and another place in the blocks (a batch of 3 is one padded block).
+    order = [6, 2, 4]
+    shuffled = score(take(policies, order), key)
+    np.testing.assert_array_equal(np.asarray(shuffled.fitnesses), fit[order])
+    np.testing.assert_array_equal(np.asarray(shuffled.descriptors), desc[order])
+    # The trajectory handed back for a policy is the same in both batches.
+    np.testing.assert_array_equal(
+        np.asarray(shuffled.extras["transitions"].obs)[:, 0],
+        np.asarray(together.extras["transitions"].obs)[:, 6],
+    )
