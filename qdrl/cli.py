@@ -18,17 +18,20 @@ def _spec_dirs() -> list[Path]:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from qdrl.config import ConfigError
-    from qdrl.experiment import run_spec
+    from qdrl.experiment import check_spec_file, run_spec
 
     try:
         # Libraries print notices on stdout (mujoco-mjx: "Failed to import warp");
-        # stdout carries only the JSON summary.
+        # stdout carries only the JSON summary (with --check: the resolved spec).
         with contextlib.redirect_stdout(sys.stderr):
-            summary = run_spec(args.spec, args.set, args.out, args.resume, args.overwrite)
+            if args.check:
+                resolved = check_spec_file(args.spec, args.set)
+            else:
+                summary = run_spec(args.spec, args.set, args.out, args.resume, args.overwrite)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
-    print(json.dumps(summary, indent=2))
+    print(resolved if args.check else json.dumps(summary, indent=2))
     return 0
 
 
@@ -83,6 +86,11 @@ def main(argv: list[str] | None = None) -> int:
     p_run.add_argument("--out", default=None, help="output directory (default: runs/<spec name>)")
     p_run.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
     p_run.add_argument("--overwrite", action="store_true", help="discard an existing run in --out")
+    p_run.add_argument(
+        "--check", action="store_true",
+        help="check the spec and build its run without compiling or running it; "
+        "print the resolved spec (every default filled in) as TOML",
+    )
     p_run.set_defaults(fn=_cmd_run)
 
     p_list = sub.add_parser("list", help="list specs, algorithms and tasks")

@@ -1,10 +1,16 @@
 """Experiment specs: TOML files turned into checked, typed config dataclasses.
 
 A spec has one table per section (`[experiment]`, `[env]`, `[agent]`, ...); each
-section maps to a frozen dataclass. Parsing checks every key and type against
-the dataclass and then calls its `check()`, so a bad spec fails in well under a
-second, before anything is compiled, with a message naming `section.key` and
-what was expected.
+section maps to a frozen dataclass. Every field declares what it accepts in its
+type: `int`, `float` (finite: NaN and +-inf are refused unless the field's `Range`
+says `finite=False`), `bool`, `str`, a `Literal`, a list (`tuple[T, ...]`), and
+with `typing.Annotated` a `Range` (`PositiveInt`, `UnitFloat`, ...) or a registry
+of names (`OneOf`). Parsing checks every key against these declarations and then
+calls the dataclass's `check()` (checks across keys), so a bad spec fails in
+milliseconds, before anything is built or compiled, with one line naming
+`section.key` and what was expected. The same declarations check a task
+builder's keyword parameters (`[task]` keys) and a config built in Python
+(`check_fields`).
 """
 
 from __future__ import annotations
@@ -14,77 +20,205 @@ import math
 import tomllib
 import types
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 
 class ConfigError(ValueError):
     """A spec that cannot run: unknown key, wrong type or impossible value."""
 
 
-def _type_name(tp: Any) -> str:
-    origin = typing.get_origin(tp)
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """The values a numeric field accepts, declared with `Annotated[int | float, Range(...)]`.
+
+    `low` / `high` bound the value (excluded when `low_open` / `high_open`). Floats
+    are finite unless `finite=False`: a key where infinity means something says so.
+    """
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    finite: bool = True
+
+    def contains(self, x: float) -> bool:
+        """Whether `x` is in the range (NaN never is)."""
+        if math.isnan(x) or (self.finite and math.isinf(x)):
+            return False
+        if self.low is not None and (x <= self.low if self.low_open else x < self.low):
+            return False
+        return self.high is None or (x < self.high if self.high_open else x <= self.high)
+
+    def describe(self, base: Any, plural: bool = False) -> str:
+        """E.g. "a positive integer", "numbers in (0, 1]"."""
+        integer = base is int
+        noun = ("integers" if plural else "an integer") if integer else ("numbers" if plural else "a number")
+        if integer and self.high is None and self.low == 1 and not self.low_open:
+            return "positive integers" if plural else "a positive integer"
+        if self.low is not None and self.high is not None:
+            lb, rb = "(" if self.low_open else "[", ")" if self.high_open else "]"
+            return f"{noun} in {lb}{_num(self.low)}, {_num(self.high)}{rb}"
+        if self.low is not None:
+            return f"{noun} {'>' if self.low_open else '>='} {_num(self.low)}"
+        if self.high is not None:
+            return f"{noun} {'<' if self.high_open else '<='} {_num(self.high)}"
+        if integer:
+            return noun
+        if self.finite:
+            return "finite numbers" if plural else "a finite number"
+        return f"{noun} (inf allowed)"
+
+
+@dataclasses.dataclass(frozen=True)
+class OneOf:
+    """A string field whose value is a name from a registry: `Annotated[str, OneOf(names_fn)]`.
+
+    `names` is called when a value is checked, so registries filled at import time
+    (algorithms, tasks, environments) are complete by then.
+    """
+
+    names: Callable[[], Collection[str]]
+
+    def describe(self, plural: bool = False) -> str:
+        return f"{'names' if plural else 'one'} of {sorted(self.names())}"
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else repr(x)
+
+
+PositiveInt = Annotated[int, Range(low=1)]
+NonNegativeInt = Annotated[int, Range(low=0)]
+PositiveFloat = Annotated[float, Range(low=0.0, low_open=True)]
+NonNegativeFloat = Annotated[float, Range(low=0.0)]
+UnitFloat = Annotated[float, Range(0.0, 1.0)]  # probabilities, shares, discounts: [0, 1]
+PositiveUnitFloat = Annotated[float, Range(0.0, 1.0, low_open=True)]  # (0, 1], e.g. Polyak rates
+
+
+def _annotation(tp: Any) -> tuple[Any, Range | None, OneOf | None]:
+    """(base type, its Range, its OneOf) of a possibly `Annotated` type."""
+    if typing.get_origin(tp) is Annotated:
+        base, *meta = typing.get_args(tp)
+        rng = next((m for m in meta if isinstance(m, Range)), None)
+        one_of = next((m for m in meta if isinstance(m, OneOf)), None)
+        return base, rng, one_of
+    return tp, None, None
+
+
+def describe(tp: Any, plural: bool = False) -> str:
+    """What a field of type `tp` accepts, in words ("a positive integer", "a list of numbers")."""
+    base, rng, one_of = _annotation(tp)
+    origin = typing.get_origin(base)
     if origin is typing.Literal:
-        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+        return ("values among " if plural else "one of ") + ", ".join(repr(a) for a in typing.get_args(base))
     if origin in (types.UnionType, typing.Union):
-        return " or ".join(_type_name(a) for a in typing.get_args(tp))
-    if origin is tuple:
-        return f"a list of {_type_name(typing.get_args(tp)[0])}"
-    if tp is type(None):
+        return " or ".join(describe(a, plural) for a in typing.get_args(base))
+    if origin in (tuple, list, Sequence):
+        return f"{'lists' if plural else 'a list'} of {describe(typing.get_args(base)[0], plural=True)}"
+    if base is type(None):
         return "nothing (omit the key)"
-    names = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
-    return names.get(tp, getattr(tp, "__name__", str(tp)))
+    if one_of is not None:
+        return one_of.describe(plural)
+    if base in (int, float):
+        return (rng or Range()).describe(base, plural)
+    names = {bool: ("true or false", "booleans"), str: ("a string", "strings")}
+    if base in names:
+        return names[base][plural]
+    return getattr(base, "__name__", str(base))
+
+
+def _show(value: Any) -> str:
+    """A value as the user wrote it, on one line."""
+    if isinstance(value, tuple):
+        value = list(value)
+    return repr(value)
 
 
 def coerce(value: Any, tp: Any, where: str) -> Any:
-    """`value` as type `tp`, or ConfigError naming `where` and the expected type."""
-    origin = typing.get_origin(tp)
+    """`value` as type `tp` (lists as tuples, integers as floats where floats are expected).
+
+    Raises ConfigError `"<where>: expected <what tp accepts>, got <value>"` when the
+    type, the finiteness, the declared `Range` or the `OneOf` registry refuses it.
+    """
+    base, rng, one_of = _annotation(tp)
+    origin = typing.get_origin(base)
     if origin in (types.UnionType, typing.Union):
-        for arg in typing.get_args(tp):
+        for arg in typing.get_args(base):
             try:
                 return coerce(value, arg, where)
             except ConfigError:
                 continue
     elif origin is typing.Literal:
-        if value in typing.get_args(tp):
+        if isinstance(value, str | int | float) and value in typing.get_args(base):
             return value
     elif origin in (tuple, list, Sequence):
-        item_tp = typing.get_args(tp)[0]
+        item_tp = typing.get_args(base)[0]
         if isinstance(value, list | tuple):
-            return tuple(coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))
-    elif tp is type(None):
+            try:
+                return tuple(coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))
+            except ConfigError:
+                pass
+    elif base is type(None):
         if value is None:
             return None
-    elif tp is bool:
+    elif base is bool:
         if isinstance(value, bool):
             return value
-    elif tp is int:
-        if isinstance(value, int) and not isinstance(value, bool):
+    elif base is int:
+        if isinstance(value, int) and not isinstance(value, bool) and (rng is None or rng.contains(value)):
             return value
-    elif tp is float:
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            if math.isnan(float(value)):
-                raise ConfigError(f"{where}: expected a number, got nan")
+    elif base is float:
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if number and (rng or Range()).contains(float(value)):
             return float(value)
-    elif tp is str:
-        if isinstance(value, str):
+    elif base is str:
+        if isinstance(value, str) and (one_of is None or value in one_of.names()):
             return value
     else:
         raise TypeError(f"unsupported config type {tp!r} at {where}")
-    raise ConfigError(f"{where}: expected {_type_name(tp)}, got {value!r}")
+    raise ConfigError(f"{where}: expected {describe(tp)}, got {_show(value)}")
 
 
-def build(cls: type[Any], data: Mapping[str, Any], section: str) -> Any:
-    """An instance of dataclass `cls` from `data`, checked; errors name `section.key`."""
-    hints = typing.get_type_hints(cls)
+def _hints(cls: Any) -> dict[str, Any]:
+    return typing.get_type_hints(cls, include_extras=True)
+
+
+def check_table(data: Any, section: str) -> Mapping[str, Any]:
+    """`data` if it is a TOML table; otherwise ConfigError naming the section."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(
+            f"{section}: expected a table ([{section}] followed by key = value lines), got {_show(data)}"
+        )
+    return data
+
+
+def check_keys(cls: type[Any], data: Any, section: str) -> dict[str, Any]:
+    """The keys given in `data` for dataclass `cls`, each checked and coerced; no check across keys.
+
+    For sections whose other keys default to values known only later (e.g. from a
+    task); `build` does this and then the rest.
+    """
+    data = check_table(data, section)
+    hints = _hints(cls)
     fields = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - fields)
     if unknown:
         raise ConfigError(
             f"{section}.{unknown[0]}: unknown key; expected one of {sorted(fields)}"
         )
-    kwargs = {k: coerce(v, hints[k], f"{section}.{k}") for k, v in data.items()}
+    return {k: coerce(v, hints[k], f"{section}.{k}") for k, v in data.items()}
+
+
+def build(cls: type[Any], data: Any, section: str) -> Any:
+    """An instance of dataclass `cls` from `data`, checked; errors name `section.key`."""
+    kwargs = check_keys(cls, data, section)
+    hints = _hints(cls)
+    for f in dataclasses.fields(cls):
+        missing = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        if f.init and missing and f.name not in kwargs:
+            raise ConfigError(f"{section}.{f.name}: missing; expected {describe(hints[f.name])}")
     obj = cls(**kwargs)
     check = getattr(obj, "check", None)
     if check is not None:
@@ -98,6 +232,39 @@ def build(cls: type[Any], data: Mapping[str, Any], section: str) -> Any:
                 msg = f"{section}: {msg}"
             raise ConfigError(msg) from e
     return obj
+
+
+def check_fields(obj: Any, section: str) -> None:
+    """Raises ConfigError naming `section.<field>` for the first field of dataclass `obj`
+    whose value its declared type refuses (for configs built in Python, not parsed)."""
+    hints = _hints(type(obj))
+    for f in dataclasses.fields(obj):
+        if f.init:
+            coerce(getattr(obj, f.name), hints[f.name], f"{section}.{f.name}")
+
+
+def check_params(
+    fn: Callable[..., Any], params: Mapping[str, Any], section: str, owner: str = ""
+) -> dict[str, Any]:
+    """`params` for the keyword parameters of `fn`, each checked against its annotation.
+
+    Unknown names and values the annotations refuse raise ConfigError naming
+    `section.<name>` (unknown ones "for <owner>"); `fn` is not called.
+    """
+    import inspect
+
+    sig = inspect.signature(fn)
+    hints = _hints(fn)
+    accepted = sorted(
+        k for k, p in sig.parameters.items() if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)
+    )
+    out = {}
+    for key, value in params.items():
+        if key not in accepted:
+            label = f" for {owner}" if owner else ""
+            raise ConfigError(f"{section}.{key}: unknown key{label}; expected one of {accepted}")
+        out[key] = coerce(value, hints[key], f"{section}.{key}") if key in hints else value
+    return out
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

@@ -16,51 +16,59 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Annotated, Any, NamedTuple, Protocol
 
 import jax
 import numpy as np
 
 from qdrl import checkpoint
-from qdrl.config import ConfigError, apply_overrides, build, dump_toml, load_toml
+from qdrl.config import (
+    ConfigError,
+    OneOf,
+    PositiveInt,
+    Range,
+    apply_overrides,
+    build,
+    check_fields,
+    check_table,
+    dump_toml,
+    load_toml,
+)
+
+
+def algorithm_names() -> list[str]:
+    """The algorithms a spec may name (`experiment.algorithm`)."""
+    _load_builtin_runs()
+    return sorted(RUNS)
+
+
+AlgorithmName = Annotated[str, OneOf(algorithm_names)]
+Seed = Annotated[int, Range(0, 2**32 - 1)]  # jax.random.PRNGKey keeps the low 32 bits
 
 
 @dataclasses.dataclass(frozen=True)
 class ExperimentConfig:
     """The `[experiment]` section: what to run and with which seed."""
 
-    algorithm: str  # a name from `qdrl list`
-    seed: int = 0  # seeds every random choice of the run
+    algorithm: AlgorithmName  # a name from `qdrl list`
+    seed: Seed = 0  # seeds every random choice of the run
     name: str = ""  # a label for plots and summaries; default: the spec file's stem
 
     def check(self) -> None:
-        if self.algorithm not in RUNS:
-            raise ValueError(
-                f"experiment.algorithm: unknown algorithm {self.algorithm!r}; "
-                f"expected one of {sorted(RUNS)}"
-            )
-        if self.seed < 0:
-            raise ValueError(f"experiment.seed: expected a non-negative integer, got {self.seed}")
+        check_fields(self, "experiment")
 
 
 @dataclasses.dataclass(frozen=True)
 class LogConfig:
     """The `[log]` section: how the driver records a run."""
 
-    checkpoint_every: int = 1  # log points between checkpoints
-    keep_checkpoints: int = 2  # newest checkpoints kept on disk
+    checkpoint_every: PositiveInt = 1  # log points between checkpoints
+    keep_checkpoints: PositiveInt = 2  # newest checkpoints kept on disk
     progress: bool = True  # show a progress bar
     plots: bool = True  # write plots/*.png at the end
 
     def check(self) -> None:
-        if self.checkpoint_every <= 0:
-            raise ValueError(
-                f"log.checkpoint_every: expected a positive integer, got {self.checkpoint_every}"
-            )
-        if self.keep_checkpoints <= 0:
-            raise ValueError(
-                f"log.keep_checkpoints: expected a positive integer, got {self.keep_checkpoints}"
-            )
+        check_fields(self, "log")
 
 
 class Run(Protocol):
@@ -93,40 +101,71 @@ class Run(Protocol):
         ...
 
 
-RunBuilder = Callable[[Mapping[str, Any], ExperimentConfig], Run]
-RUNS: dict[str, RunBuilder] = {}
+Sections = dict[str, Any]  # section name -> its checked config dataclass (or table)
+# The parse-and-check phase of an algorithm: a spec -> its own sections, every value
+# checked (`qdrl.config.build`). Pure Python: builds no task, environment or network.
+SpecParser = Callable[[Mapping[str, Any], ExperimentConfig], Sections]
+# The build phase: checked sections -> a `Run` (tasks, environments, networks); compiles nothing.
+RunBuilder = Callable[[Sections, ExperimentConfig], Run]
 
 
-def register(name: str) -> Callable[[RunBuilder], RunBuilder]:
-    """Register a builder of runs under an algorithm name."""
+class Algorithm(NamedTuple):
+    """How a spec of one algorithm is parsed and checked, then built."""
 
-    def deco(fn: RunBuilder) -> RunBuilder:
-        RUNS[name] = fn
-        return fn
+    parse: SpecParser
+    build: RunBuilder
 
-    return deco
+
+RUNS: dict[str, Algorithm] = {}
+
+
+def register(name: str, parse: SpecParser, build: RunBuilder) -> None:
+    """Register an algorithm: its spec parser and its run builder."""
+    RUNS[name] = Algorithm(parse, build)
 
 
 def _load_builtin_runs() -> None:
     from qdrl.runners import pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
 
 
-def build_run(spec: Mapping[str, Any]) -> tuple[Run, ExperimentConfig, LogConfig]:
-    """Parse and check a whole spec (no compilation); raises ConfigError on any problem."""
+@dataclasses.dataclass(frozen=True)
+class CheckedSpec:
+    """A spec whose every section is parsed into a checked config; nothing built yet."""
+
+    experiment: ExperimentConfig
+    log: LogConfig
+    sections: Sections  # the algorithm's own sections
+
+
+def check_spec(spec: Mapping[str, Any]) -> CheckedSpec:
+    """Parse and check every section of a spec (pure Python, milliseconds); raises ConfigError.
+
+    Every value is checked for type, finiteness and range, every name against its
+    registry, before any task, environment or network is built.
+    """
     _load_builtin_runs()
+    for name, table in spec.items():
+        check_table(table, name)
     if "experiment" not in spec:
         raise ConfigError("experiment: missing section; expected [experiment] with algorithm = ...")
     exp = build(ExperimentConfig, spec["experiment"], "experiment")
     log = build(LogConfig, spec.get("log", {}), "log")
-    run = RUNS[exp.algorithm](spec, exp)
-    known = {"experiment", "log", *run.sections}
+    sections = RUNS[exp.algorithm].parse(spec, exp)
+    known = {"experiment", "log", *sections}
     unknown = sorted(set(spec) - known)
     if unknown:
         raise ConfigError(
             f"{unknown[0]}: unknown section for algorithm {exp.algorithm!r}; "
             f"expected sections {sorted(known)}"
         )
-    return run, exp, log
+    return CheckedSpec(exp, log, sections)
+
+
+def build_run(spec: Mapping[str, Any]) -> tuple[Run, ExperimentConfig, LogConfig]:
+    """Check a whole spec (`check_spec`), then build its run (no compilation); raises ConfigError."""
+    checked = check_spec(spec)
+    run = RUNS[checked.experiment.algorithm].build(checked.sections, checked.experiment)
+    return run, checked.experiment, checked.log
 
 
 def resolved_toml(run: Run, exp: ExperimentConfig, log: LogConfig) -> str:
@@ -176,12 +215,25 @@ def run_spec(
     overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run the spec at `spec_path` (with `--set` overrides) and return its summary."""
+    spec = load_spec(spec_path, overrides)
+    out = Path(out_dir) if out_dir else Path("runs") / Path(spec_path).stem
+    return run(spec, out, resume, overwrite)
+
+
+def load_spec(spec_path: str | Path, overrides: list[str] | None = None) -> dict[str, Any]:
+    """The spec at `spec_path` with `--set` overrides; `experiment.name` defaults to the file's stem."""
     spec_path = Path(spec_path)
     spec = apply_overrides(load_toml(spec_path), overrides or [])
-    spec.setdefault("experiment", {})
-    if not spec["experiment"].get("name"):
-        spec["experiment"]["name"] = spec_path.stem
-    return run(spec, Path(out_dir) if out_dir else Path("runs") / spec_path.stem, resume, overwrite)
+    exp = spec.setdefault("experiment", {})
+    if isinstance(exp, dict) and not exp.get("name"):
+        exp["name"] = spec_path.stem
+    return spec
+
+
+def check_spec_file(spec_path: str | Path, overrides: list[str] | None = None) -> str:
+    """Check the spec at `spec_path` as `run_spec` would, building its run but compiling and
+    running nothing; returns the resolved spec (every default filled in) as TOML."""
+    return resolved_toml(*build_run(load_spec(spec_path, overrides)))
 
 
 def run(

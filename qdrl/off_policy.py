@@ -21,6 +21,7 @@ import jax.numpy as jnp
 
 from qdrl import buffers
 from qdrl.agents.base import Agent, AgentState
+from qdrl.config import NonNegativeInt, PositiveInt, check_fields
 from qdrl.envs.base import Env, EnvState, reset_batch
 from qdrl.rollout import env_step, run_episodes
 from qdrl.types import Array, PRNGKey, Transition
@@ -30,32 +31,17 @@ from qdrl.types import Array, PRNGKey, Transition
 class TrainConfig:
     """Settings of the off-policy loop (the agent's own settings are in its config)."""
 
-    total_env_steps: int = 1_000_000  # environment steps of the whole run
-    num_envs: int = 16  # environments stepped in parallel for collection
-    batch_size: int = 256  # transitions per gradient step
-    buffer_size: int = 1_000_000  # replay capacity, in transitions
-    learning_starts: int = 10_000  # env steps of uniform random actions before any update
-    grad_steps_per_iter: int = 16  # updates per iteration (num_envs env steps)
-    eval_every: int = 10_000  # env steps between log points (evaluation, metrics row)
-    num_eval_envs: int = 16  # episodes per evaluation, deterministic policy
+    total_env_steps: PositiveInt = 1_000_000  # environment steps of the whole run
+    num_envs: PositiveInt = 16  # environments stepped in parallel for collection
+    batch_size: PositiveInt = 256  # transitions per gradient step
+    buffer_size: PositiveInt = 1_000_000  # replay capacity, in transitions
+    learning_starts: NonNegativeInt = 10_000  # env steps of uniform random actions before any update
+    grad_steps_per_iter: PositiveInt = 16  # updates per iteration (num_envs env steps)
+    eval_every: PositiveInt = 10_000  # env steps between log points (evaluation, metrics row)
+    num_eval_envs: PositiveInt = 16  # episodes per evaluation, deterministic policy
 
     def check(self) -> None:
-        for name in (
-            "total_env_steps",
-            "num_envs",
-            "batch_size",
-            "buffer_size",
-            "grad_steps_per_iter",
-            "eval_every",
-            "num_eval_envs",
-        ):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-                raise ValueError(f"train.{name}: expected a positive integer, got {value!r}")
-        if self.learning_starts < 0:
-            raise ValueError(
-                f"train.learning_starts: expected a non-negative integer, got {self.learning_starts}"
-            )
+        check_fields(self, "train")
         if self.eval_every % self.num_envs:
             raise ValueError(
                 f"train.eval_every: expected a multiple of train.num_envs={self.num_envs}, "

@@ -31,6 +31,7 @@ from typing import Any, Literal, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from qdrl.config import NonNegativeInt, PositiveFloat, PositiveInt, UnitFloat, check_fields
 from qdrl.off_policy import TrainState
 from qdrl.types import Array, PRNGKey
 
@@ -61,13 +62,13 @@ LOG_UNIFORM = ("actor_lr", "critic_lr", "alpha_lr")
 class PBTConfig:
     """The `[pbt]` section. Defaults: QDax/ME-PBT's ranges, Jaderberg et al.'s perturbation."""
 
-    population_size: int = 8  # members trained in parallel
-    exploit_every: int = 1  # log intervals (train.eval_every env steps per member) between PBT steps
-    num_replace: int = 2  # worst members replaced at each PBT step
-    num_best: int = 2  # best members the replaced ones copy from
+    population_size: PositiveInt = 8  # members trained in parallel
+    exploit_every: PositiveInt = 1  # log intervals (train.eval_every env steps per member) between PBT steps
+    num_replace: NonNegativeInt = 2  # worst members replaced at each PBT step
+    num_best: PositiveInt = 2  # best members the replaced ones copy from
     explore: Literal["perturb", "resample"] = "perturb"
-    perturb_factors: tuple[float, ...] = (0.8, 1.2)  # "perturb": factors drawn uniformly
-    resample_probability: float = 0.25  # "perturb": chance a hyperparameter is resampled instead
+    perturb_factors: tuple[PositiveFloat, ...] = (0.8, 1.2)  # "perturb": factors drawn uniformly
+    resample_probability: UnitFloat = 0.25  # "perturb": chance a hyperparameter is resampled instead
     copy_buffer: bool = True  # replaced members also take their source's replay buffer
     hparams: tuple[str, ...] = ()  # names to tune; empty: the agent's DEFAULT_SPACES
     low: tuple[float, ...] = ()  # per name in `hparams`: lower bound
@@ -80,25 +81,14 @@ class PBTConfig:
                 object.__setattr__(self, name, tuple(value))
 
     def check(self) -> None:
-        for name in ("population_size", "exploit_every", "num_best"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-                raise ValueError(f"pbt.{name}: expected a positive integer, got {value!r}")
-        if not isinstance(self.num_replace, int) or self.num_replace < 0:
-            raise ValueError(f"pbt.num_replace: expected an integer >= 0, got {self.num_replace!r}")
+        check_fields(self, "pbt")
         if self.num_best + self.num_replace > self.population_size:
             raise ValueError(
                 f"pbt.num_best + pbt.num_replace: expected at most pbt.population_size="
                 f"{self.population_size}, got {self.num_best} + {self.num_replace}"
             )
-        if not self.perturb_factors or any(f <= 0 for f in self.perturb_factors):
-            raise ValueError(
-                f"pbt.perturb_factors: expected a list of positive numbers, got {list(self.perturb_factors)}"
-            )
-        if not 0.0 <= self.resample_probability <= 1.0:
-            raise ValueError(
-                f"pbt.resample_probability: expected a number in [0, 1], got {self.resample_probability}"
-            )
+        if not self.perturb_factors:
+            raise ValueError("pbt.perturb_factors: expected a list of numbers > 0, got []")
         if not len(self.hparams) == len(self.low) == len(self.high):
             raise ValueError(
                 f"pbt.hparams, pbt.low, pbt.high: expected lists of one length, got "

@@ -1,12 +1,13 @@
-"""Pieces every agent shares: an Adam step with the learning rate as an array, and checks."""
+"""Pieces every agent shares: an Adam step with the learning rate as an array, checks, field types."""
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Annotated, Any
 
 import optax
 
+from qdrl.config import OneOf, PositiveInt
 from qdrl.types import Array
 
 
@@ -21,12 +22,6 @@ def adam_step(
     return optax.apply_updates(params, optax.tree.scale(-lr, updates)), opt_state
 
 
-def require(ok: bool, field: str, expected: str, value: object) -> None:
-    """Raise `ValueError("agent.<field>: expected <expected>, got <value>")` unless `ok`."""
-    if not ok:
-        raise ValueError(f"agent.{field}: expected {expected}, got {value!r}")
-
-
 def is_real(value: object) -> bool:
     """True for a finite int or float (bools excluded)."""
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
@@ -38,20 +33,13 @@ def check_size(name: str, value: object) -> None:
         raise ValueError(f"{name}: expected a positive int, got {value!r}")
 
 
-def check_network(hidden: object, activation: object) -> None:
-    """Raise `ValueError("agent.hidden: ...")` / `("agent.activation: ...")` on a bad network shape."""
+def activation_names() -> list[str]:
+    """The activations a network config may name (`qdrl.nets.ACTIVATIONS`)."""
     from qdrl import nets
 
-    require(
-        isinstance(hidden, tuple)
-        and all(isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in hidden),
-        "hidden",
-        "a tuple of positive ints",
-        hidden,
-    )
-    require(
-        activation in nets.ACTIVATIONS,
-        "activation",
-        f"one of {sorted(nets.ACTIVATIONS)}",
-        activation,
-    )
+    return sorted(nets.ACTIVATIONS)
+
+
+# Config field types shared by the agents and skill models: hidden layer widths, an activation.
+Hidden = tuple[PositiveInt, ...]
+Activation = Annotated[str, OneOf(activation_names)]

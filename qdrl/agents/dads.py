@@ -35,15 +35,16 @@ import optax
 
 from qdrl import nets
 from qdrl.agents.base import Agent
+from qdrl.agents.common import Hidden
 from qdrl.agents.intrinsic import (
     Gate,
     Info,
     RewardModule,
     SkillModelConfig,
     check_field,
-    is_positive_int,
     with_skill_model,
 )
+from qdrl.config import NonNegativeInt, PositiveInt
 from qdrl.envs.skills import skill_of, strip_skill
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
 
@@ -62,15 +63,15 @@ class DADSConfig(SkillModelConfig):
     steps per 64 SAC steps for Ant, 16 per 128 for Humanoid).
     """
 
-    num_skills: int = 10
-    hidden: tuple[int, ...] = (512, 512)
-    model_update_every: int = 8
+    num_skills: PositiveInt = 10
+    hidden: Hidden = (512, 512)
+    model_update_every: PositiveInt = 8
     # Mixture components ("experts") of the Gaussian mixture over delta.
-    num_components: int = 4
+    num_components: PositiveInt = 4
     # L, alternative skills drawn from the prior per transition; 0: all K skills.
-    num_alt_skills: int = 0
+    num_alt_skills: NonNegativeInt = 0
     # Input dimensions of s the model does not see (e.g. [0, 1]: the x-y prior).
-    omit_input_dims: tuple[int, ...] = ()
+    omit_input_dims: tuple[NonNegativeInt, ...] = ()
     # Standardise delta with running moments before the likelihood.
     normalize_targets: bool = True
     # Learn a per-component diagonal variance instead of fixing it to 1.
@@ -79,19 +80,9 @@ class DADSConfig(SkillModelConfig):
     def check(self) -> None:
         """Raises ValueError naming the first `skills.<field>` out of range."""
         super().check()
-        s = "skills"
-        check_field(is_positive_int(self.num_components), s, "num_components", "a positive int",
-                    self.num_components)
-        n = self.num_alt_skills
-        check_field(isinstance(n, int) and not isinstance(n, bool) and n >= 0, s, "num_alt_skills",
-                    "an int >= 0 (0: all skills)", n)
         dims = self.omit_input_dims
-        check_field(isinstance(dims, tuple) and all(isinstance(d, int) and d >= 0 for d in dims)
-                    and len(set(dims)) == len(dims), s, "omit_input_dims",
-                    "a list of distinct ints >= 0", dims)
-        for name in ("normalize_targets", "learn_variance"):
-            check_field(isinstance(getattr(self, name), bool), s, name, "true or false",
-                        getattr(self, name))
+        check_field(len(set(dims)) == len(dims), "skills", "omit_input_dims",
+                    "a list of distinct integers >= 0", dims)
 
 
 class RunningMoments(NamedTuple):

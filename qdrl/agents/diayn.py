@@ -26,6 +26,7 @@ import optax
 
 from qdrl import nets
 from qdrl.agents.base import Agent
+from qdrl.agents.common import Hidden
 from qdrl.agents.intrinsic import (
     Gate,
     Info,
@@ -34,6 +35,7 @@ from qdrl.agents.intrinsic import (
     SkillModelConfig,
     with_skill_model,
 )
+from qdrl.config import PositiveInt
 from qdrl.envs.skills import skill_of, strip_skill
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
 
@@ -46,8 +48,8 @@ class DIAYNConfig(SkillModelConfig):
     of two hidden layers of 300 units, Adam 3e-4; pure skill discovery (no task reward).
     """
 
-    num_skills: int = 50
-    hidden: tuple[int, ...] = (300, 300)
+    num_skills: PositiveInt = 50
+    hidden: Hidden = (300, 300)
 
 
 class DiscriminatorState(NamedTuple):

@@ -30,9 +30,9 @@ from typing import Any, Literal, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from qdrl import nets
 from qdrl.agents.base import Agent, AgentState
-from qdrl.agents.common import is_real
+from qdrl.agents.common import Activation, Hidden
+from qdrl.config import PositiveFloat, PositiveInt, check_fields
 from qdrl.types import Array, Metrics, PRNGKey, Transition
 
 # per-transition values (B,) by name; the agent logs their batch means
@@ -63,22 +63,22 @@ class SkillModelConfig:
     """
 
     # K, the number of discrete skills (uniform prior p(z) = 1 / K).
-    num_skills: int = 10
+    num_skills: PositiveInt = 10
     # What the model reads of a state: "descriptor" (the env's state descriptor, e.g.
     # x-y) or "full" (the observation without the skill code).
     model_input: SkillInput = "descriptor"
     # Hidden layer widths of the model.
-    hidden: tuple[int, ...] = (256, 256)
+    hidden: Hidden = (256, 256)
     # Activation of its hidden layers; a key of `qdrl.nets.ACTIVATIONS`.
-    activation: str = "relu"
+    activation: Activation = "relu"
     # Adam step size of the model.
-    learning_rate: float = 3e-4
+    learning_rate: PositiveFloat = 3e-4
     # lambda: weight of the intrinsic reward in the relabelled reward.
     diversity_scale: float = 1.0
     # Weight of the environment's reward in the relabelled reward (0: pure skill discovery).
     extrinsic_scale: float = 0.0
     # The model takes one Adam step every this many agent updates (1: every update).
-    model_update_every: int = 1
+    model_update_every: PositiveInt = 1
 
     def __post_init__(self) -> None:
         # TOML and JSON give lists; tuples keep the config hashable.
@@ -88,22 +88,8 @@ class SkillModelConfig:
                 object.__setattr__(self, field.name, tuple(value))
 
     def check(self) -> None:
-        """Raises ValueError naming the first `skills.<field>` out of range."""
-        s = "skills"
-        check_field(is_positive_int(self.num_skills), s, "num_skills", "a positive int",
-                    self.num_skills)
-        check_field(self.model_input in ("descriptor", "full"), s, "model_input",
-                    "'descriptor' or 'full'", self.model_input)
-        check_field(isinstance(self.hidden, tuple) and all(is_positive_int(w) for w in self.hidden),
-                    s, "hidden", "a list of positive ints", self.hidden)
-        check_field(self.activation in nets.ACTIVATIONS, s, "activation",
-                    f"one of {sorted(nets.ACTIVATIONS)}", self.activation)
-        check_field(is_real(self.learning_rate) and self.learning_rate > 0, s, "learning_rate",
-                    "a float > 0", self.learning_rate)
-        for name in ("diversity_scale", "extrinsic_scale"):
-            check_field(is_real(getattr(self, name)), s, name, "a finite float", getattr(self, name))
-        check_field(is_positive_int(self.model_update_every), s, "model_update_every",
-                    "a positive int", self.model_update_every)
+        """Raises ValueError naming the first `skills.<field>` its declared type refuses."""
+        check_fields(self, "skills")
 
 
 class RewardModule(NamedTuple):

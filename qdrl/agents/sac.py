@@ -27,7 +27,8 @@ import rlax
 
 from qdrl import nets
 from qdrl.agents.base import Agent
-from qdrl.agents.common import adam_step, check_network, check_size, is_real, require
+from qdrl.agents.common import Activation, Hidden, adam_step, check_size
+from qdrl.config import PositiveFloat, PositiveUnitFloat, UnitFloat, check_fields
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
 
 # Names of the PBT-tunable scalars held in `SACState.hparams`.
@@ -42,27 +43,27 @@ class SACConfig:
     """
 
     # Adam step size of the policy.
-    actor_lr: float = 3e-4
+    actor_lr: PositiveFloat = 3e-4
     # Adam step size of the twin Q critics.
-    critic_lr: float = 3e-4
+    critic_lr: PositiveFloat = 3e-4
     # Adam step size of log(alpha), the entropy temperature.
-    alpha_lr: float = 3e-4
+    alpha_lr: PositiveFloat = 3e-4
     # gamma: weight of the bootstrapped next-state value in the critic target.
-    discount: float = 0.99
+    discount: UnitFloat = 0.99
     # Polyak rate of the target critics: target <- tau * online + (1 - tau) * target.
-    tau: float = 0.005
+    tau: PositiveUnitFloat = 0.005
     # Rewards are multiplied by this in the critic target.
-    reward_scale: float = 1.0
+    reward_scale: PositiveFloat = 1.0
     # Entropy temperature alpha at initialisation (and forever if learn_alpha is False).
-    init_alpha: float = 1.0
+    init_alpha: PositiveFloat = 1.0
     # Entropy the temperature drives the policy towards; None means -action_size.
     target_entropy: float | None = None
     # Whether alpha is learned (eq. 18) or held at init_alpha.
     learn_alpha: bool = True
     # Hidden layer widths of the policy and of each critic.
-    hidden: tuple[int, ...] = (256, 256)
+    hidden: Hidden = (256, 256)
     # Activation of the hidden layers; a key of `qdrl.nets.ACTIVATIONS`.
-    activation: str = "relu"
+    activation: Activation = "relu"
 
     def __post_init__(self) -> None:
         # TOML and JSON give lists; a tuple keeps the config hashable.
@@ -70,22 +71,8 @@ class SACConfig:
             object.__setattr__(self, "hidden", tuple(self.hidden))
 
     def check(self) -> None:
-        """Raises ValueError naming the first field whose value is out of range."""
-        for name in ("actor_lr", "critic_lr", "alpha_lr"):
-            value = getattr(self, name)
-            require(is_real(value) and value > 0, name, "a float > 0", value)
-        d = self.discount
-        require(is_real(d) and 0 <= d <= 1, "discount", "a float in [0, 1]", d)
-        t = self.tau
-        require(is_real(t) and 0 < t <= 1, "tau", "a float in (0, 1]", t)
-        r = self.reward_scale
-        require(is_real(r) and r > 0, "reward_scale", "a float > 0", r)
-        a = self.init_alpha
-        require(is_real(a) and a > 0, "init_alpha", "a float > 0", a)
-        h = self.target_entropy
-        require(h is None or is_real(h), "target_entropy", "a finite float or None", h)
-        require(isinstance(self.learn_alpha, bool), "learn_alpha", "a bool", self.learn_alpha)
-        check_network(self.hidden, self.activation)
+        """Raises ValueError naming the first `agent.<field>` its declared type refuses."""
+        check_fields(self, "agent")
 
     def hparams(self) -> dict[str, float]:
         """The PBT-tunable scalars, as stored (as float32 arrays) in `SACState.hparams`."""

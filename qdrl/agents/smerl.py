@@ -22,10 +22,10 @@ from typing import Literal
 import jax.numpy as jnp
 
 from qdrl.agents.base import Agent
-from qdrl.agents.common import is_real
 from qdrl.agents.dads import DADSConfig, make_dads
 from qdrl.agents.diayn import DIAYNConfig, make_diayn
-from qdrl.agents.intrinsic import Gate, check_field
+from qdrl.agents.intrinsic import Gate
+from qdrl.config import NonNegativeFloat, check_fields
 from qdrl.types import Array
 
 
@@ -42,15 +42,11 @@ class SMERLConfig:
     # R*, the target episode return.
     target: float = 0.0
     # epsilon: episodes with return >= target - margin receive the diversity reward.
-    margin: float = 0.0
+    margin: NonNegativeFloat = 0.0
 
     def check(self) -> None:
         """Raises ValueError naming `smerl.target` or `smerl.margin` when out of range."""
-        check_field(is_real(self.target), "smerl", "target", "a finite float", self.target)
-        check_field(
-            is_real(self.margin) and self.margin >= 0, "smerl", "margin", "a float >= 0",
-            self.margin,
-        )
+        check_fields(self, "smerl")
 
 
 def smerl_gate(target: float, margin: float) -> Gate:

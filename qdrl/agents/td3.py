@@ -26,7 +26,15 @@ import rlax
 
 from qdrl import nets
 from qdrl.agents.base import Agent
-from qdrl.agents.common import adam_step, check_network, check_size, is_real, require
+from qdrl.agents.common import Activation, Hidden, adam_step, check_size
+from qdrl.config import (
+    NonNegativeFloat,
+    PositiveFloat,
+    PositiveInt,
+    PositiveUnitFloat,
+    UnitFloat,
+    check_fields,
+)
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
 
 # Names of the PBT-tunable scalars held in `TD3State.hparams`.
@@ -53,27 +61,27 @@ class TD3Config:
     """
 
     # Adam step size of the policy.
-    actor_lr: float = 3e-4
+    actor_lr: PositiveFloat = 3e-4
     # Adam step size of the twin Q critics.
-    critic_lr: float = 3e-4
+    critic_lr: PositiveFloat = 3e-4
     # gamma: weight of the bootstrapped next-state value in the critic target.
-    discount: float = 0.99
+    discount: UnitFloat = 0.99
     # Polyak rate of the target networks: target <- tau * online + (1 - tau) * target.
-    tau: float = 0.005
+    tau: PositiveUnitFloat = 0.005
     # Rewards are multiplied by this in the critic target.
-    reward_scale: float = 1.0
+    reward_scale: PositiveFloat = 1.0
     # Std of the Gaussian noise added to the target action (target policy smoothing).
-    policy_noise: float = 0.2
+    policy_noise: NonNegativeFloat = 0.2
     # That noise is clipped to [-noise_clip, noise_clip].
-    noise_clip: float = 0.5
+    noise_clip: NonNegativeFloat = 0.5
     # The actor and the targets are updated once every policy_delay critic updates.
-    policy_delay: int = 2
+    policy_delay: PositiveInt = 2
     # Std of the Gaussian noise added to actions when exploring (`act`).
-    expl_noise: float = 0.1
+    expl_noise: NonNegativeFloat = 0.1
     # Hidden layer widths of the policy and of each critic.
-    hidden: tuple[int, ...] = (256, 256)
+    hidden: Hidden = (256, 256)
     # Activation of the hidden layers; a key of `qdrl.nets.ACTIVATIONS`.
-    activation: str = "relu"
+    activation: Activation = "relu"
 
     def __post_init__(self) -> None:
         # TOML and JSON give lists; a tuple keeps the config hashable.
@@ -81,27 +89,8 @@ class TD3Config:
             object.__setattr__(self, "hidden", tuple(self.hidden))
 
     def check(self) -> None:
-        """Raises ValueError naming the first field whose value is out of range."""
-        for name in ("actor_lr", "critic_lr"):
-            value = getattr(self, name)
-            require(is_real(value) and value > 0, name, "a float > 0", value)
-        d = self.discount
-        require(is_real(d) and 0 <= d <= 1, "discount", "a float in [0, 1]", d)
-        t = self.tau
-        require(is_real(t) and 0 < t <= 1, "tau", "a float in (0, 1]", t)
-        r = self.reward_scale
-        require(is_real(r) and r > 0, "reward_scale", "a float > 0", r)
-        for name in ("policy_noise", "noise_clip", "expl_noise"):
-            value = getattr(self, name)
-            require(is_real(value) and value >= 0, name, "a float >= 0", value)
-        k = self.policy_delay
-        require(
-            isinstance(k, int) and not isinstance(k, bool) and k >= 1,
-            "policy_delay",
-            "an int >= 1",
-            k,
-        )
-        check_network(self.hidden, self.activation)
+        """Raises ValueError naming the first `agent.<field>` its declared type refuses."""
+        check_fields(self, "agent")
 
     def hparams(self) -> dict[str, float]:
         """The PBT-tunable scalars, as stored (as float32 arrays) in `TD3State.hparams`."""

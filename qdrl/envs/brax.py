@@ -15,7 +15,7 @@ Besides brax's registry, two walled ant environments are available by name:
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Literal, get_args
 
 import jax
 import jax.numpy as jnp
@@ -23,7 +23,9 @@ import jax.numpy as jnp
 from qdrl.envs.base import Env
 from qdrl.types import Array, PRNGKey
 
-BACKENDS = ("spring", "positional", "generalized", "mjx")
+# brax's physics pipelines (a spec's `backend` keys are declared as this type).
+Backend = Literal["spring", "positional", "generalized", "mjx"]
+BACKENDS: tuple[str, ...] = get_args(Backend)
 
 # pipeline state -> state descriptor (D,)
 DescriptorFn = Callable[[Any], Array]

@@ -11,6 +11,7 @@ fixed random hyperparameters, the baseline PBT is compared against.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -21,12 +22,13 @@ import numpy as np
 
 from qdrl import pbt
 from qdrl.config import ConfigError, build
-from qdrl.experiment import ExperimentConfig, register
+from qdrl.experiment import ExperimentConfig, Sections, register
 from qdrl.off_policy import TrainState
+from qdrl.qd.emitters.me_pbt import MEPBTConfig
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
-from qdrl.runners.qd import QDRun
-from qdrl.runners.rl import OffPolicyRun
+from qdrl.runners.qd import QDRun, parse_qd
+from qdrl.runners.rl import OffPolicyRun, parse_off_policy
 
 
 class PBTState(NamedTuple):
@@ -44,17 +46,14 @@ class PBTRun(OffPolicyRun):
 
     progress_keys: tuple[str, ...] = ("eval_return", "eval_return_median", "coverage")
 
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> None:
-        super().__init__(spec, dataclasses.replace(exp, algorithm=agent_name))
+    def __init__(self, sections: Sections, exp: ExperimentConfig, agent_name: str) -> None:
+        """Builds the environment, agent and trainer of checked `sections` (`parse_pbt`)."""
+        super().__init__(sections, dataclasses.replace(exp, algorithm=agent_name))
         self.algorithm = exp.algorithm
         self.agent_name = agent_name
-        self.pbt_cfg = build(pbt.PBTConfig, spec.get("pbt", {}), "pbt")
-        self.sections["pbt"] = self.pbt_cfg
+        self.pbt_cfg: pbt.PBTConfig = sections["pbt"]
         example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
-        try:
-            self.space = pbt.search_space(agent_name, self.pbt_cfg, example.hparams)
-        except ValueError as e:
-            raise ConfigError(str(e)) from e
+        self.space = pbt.search_space(agent_name, self.pbt_cfg, example.hparams)
         self._pbt_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x9B7)
 
     @property
@@ -156,14 +155,29 @@ class PBTRun(OffPolicyRun):
         }
 
 
-@register("sac_pbt")
-def _sac_pbt(spec: Mapping[str, Any], exp: ExperimentConfig) -> PBTRun:
-    return PBTRun(spec, exp, "sac")
+def check_search_space(agent_name: str, config: pbt.PBTConfig, agent_config: Any, section: str) -> None:
+    """Raises ConfigError unless `config` tunes hyperparameters `agent_name` has, in valid ranges."""
+    try:
+        pbt.search_space(agent_name, config, agent_config.hparams())
+    except ValueError as e:
+        msg = str(e)
+        raise ConfigError(msg if section == "pbt" else msg.replace("pbt.", f"{section}.")) from e
 
 
-@register("td3_pbt")
-def _td3_pbt(spec: Mapping[str, Any], exp: ExperimentConfig) -> PBTRun:
-    return PBTRun(spec, exp, "td3")
+def parse_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> Sections:
+    """The checked sections of a PBT spec: those of a SAC/TD3 spec (`parse_off_policy`) and `[pbt]`."""
+    sections = parse_off_policy(spec, dataclasses.replace(exp, algorithm=agent_name))
+    sections["pbt"] = build(pbt.PBTConfig, spec.get("pbt", {}), "pbt")
+    check_search_space(agent_name, sections["pbt"], sections["agent"], "pbt")
+    return sections
+
+
+for _agent in ("sac", "td3"):
+    register(
+        f"{_agent}_pbt",
+        functools.partial(parse_pbt, agent_name=_agent),
+        functools.partial(PBTRun, agent_name=_agent),
+    )
 
 
 class MEPBTRun(QDRun):
@@ -179,42 +193,29 @@ class MEPBTRun(QDRun):
 
     progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness", "population_best")
 
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> None:
+    def __init__(self, sections: Sections, exp: ExperimentConfig, agent_name: str) -> None:
+        """Builds the task, agent, trainer and emitter of checked `sections` (`parse_me_pbt`)."""
         from qdrl.agents import AGENTS
         from qdrl.off_policy import make_trainer
-        from qdrl.qd.emitters.me_pbt import MEPBTConfig, MEPBTEmitter
+        from qdrl.qd.emitters.me_pbt import MEPBTEmitter
 
-        if "emitter" in spec:
-            raise ConfigError("emitter: ME-PBT takes no [emitter] section; its GA settings are in [me_pbt]")
-        me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
-        super().__init__(
-            {k: v for k, v in spec.items() if k not in ("agent", "me_pbt")}, exp, "cvt",
-            eval_batch=me_cfg.ga_batch_size + me_cfg.population_size,
-        )
-        del self.sections["emitter"]
-        config_cls, make_agent = AGENTS[agent_name]
-        agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
-        self.me_cfg = me_cfg
-        self.sections.update({"agent": agent_cfg, "me_pbt": self.me_cfg})
+        super().__init__(sections, exp)
+        _, make_agent = AGENTS[agent_name]
+        agent_cfg = sections["agent"]
+        self.me_cfg: MEPBTConfig = sections["me_pbt"]
         task = self._task
         if task.env is None or task.policy_scoring is None:
             raise ConfigError(
                 f"task.name: ME-PBT needs a policy task with an environment (e.g. ant_uni, "
                 f"halfcheetah_uni, point_maze), got {task.name!r}"
             )
-        if self.qd_cfg.init_batch_size < self.me_cfg.population_size:
-            raise ConfigError(
-                f"qd.init_batch_size: expected at least me_pbt.population_size="
-                f"{self.me_cfg.population_size}, got {self.qd_cfg.init_batch_size}"
-            )
         try:
             self.agent = make_agent(agent_cfg, task.env.observation_size, task.env.action_size)
-            example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
-            space = pbt.search_space(agent_name, self.me_cfg.pbt_config(), example.hparams)
-            trainer = make_trainer(task.env, self.agent, self.me_cfg.train_config())
         except ValueError as e:
-            msg = str(e)
-            raise ConfigError(msg if msg.startswith(("me_pbt.", "pbt.", "train.")) else f"me_pbt: {msg}") from e
+            raise ConfigError(f"agent: {e}") from e
+        example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
+        space = pbt.search_space(agent_name, self.me_cfg.pbt_config(), example.hparams)
+        trainer = make_trainer(task.env, self.agent, self.me_cfg.train_config())
         self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg)
 
     def _build(self, key: jax.Array) -> Any:
@@ -271,11 +272,32 @@ class MEPBTRun(QDRun):
         return {"qd_offset": self._task.qd_offset, "population_size": self.me_cfg.population_size}
 
 
-@register("me_pbt_sac")
-def _me_pbt_sac(spec: Mapping[str, Any], exp: ExperimentConfig) -> MEPBTRun:
-    return MEPBTRun(spec, exp, "sac")
+def parse_me_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> Sections:
+    """The checked sections of an ME-PBT spec: `[task]`, `[repertoire]`, `[qd]`, `[agent]`, `[me_pbt]`."""
+    from qdrl.agents import AGENTS
+
+    if "emitter" in spec:
+        raise ConfigError("emitter: ME-PBT takes no [emitter] section; its GA settings are in [me_pbt]")
+    me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
+    sections = parse_qd(
+        spec, exp, default_kind="cvt", eval_batch=me_cfg.ga_batch_size + me_cfg.population_size,
+        with_emitter=False,
+    )
+    config_cls, _ = AGENTS[agent_name]
+    agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
+    if sections["qd"].init_batch_size < me_cfg.population_size:
+        raise ConfigError(
+            f"qd.init_batch_size: expected at least me_pbt.population_size="
+            f"{me_cfg.population_size}, got {sections['qd'].init_batch_size}"
+        )
+    check_search_space(agent_name, me_cfg.pbt_config(), agent_cfg, "me_pbt")
+    sections.update({"agent": agent_cfg, "me_pbt": me_cfg})
+    return sections
 
 
-@register("me_pbt_td3")
-def _me_pbt_td3(spec: Mapping[str, Any], exp: ExperimentConfig) -> MEPBTRun:
-    return MEPBTRun(spec, exp, "td3")
+for _agent in ("sac", "td3"):
+    register(
+        f"me_pbt_{_agent}",
+        functools.partial(parse_me_pbt, agent_name=_agent),
+        functools.partial(MEPBTRun, agent_name=_agent),
+    )

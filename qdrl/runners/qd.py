@@ -3,24 +3,36 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import time
-import typing
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import jax
 import numpy as np
 
-from qdrl.config import ConfigError, build, coerce
-from qdrl.experiment import ExperimentConfig, register
+from qdrl.config import (
+    ConfigError,
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveFloat,
+    PositiveInt,
+    Range,
+    UnitFloat,
+    build,
+    check_params,
+    check_table,
+)
+from qdrl.experiment import ExperimentConfig, Sections, register
 from qdrl.qd.emitters.dcrl import DCRLConfig
 from qdrl.qd.emitters.pg import PGConfig
 
 if TYPE_CHECKING:
     from qdrl.qd.base import Emitter
     from qdrl.qd.map_elites import MapElites, QDState
+    from qdrl.tasks import Task
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,19 +40,14 @@ class RepertoireConfig:
     """The `[repertoire]` section: the container of elites."""
 
     kind: Literal["grid", "cvt"] = "grid"  # regular grid (direct indexing) or CVT
-    grid_shape: tuple[int, ...] = (32, 32)  # grid: cells per descriptor dimension
-    num_centroids: int = 1024  # cvt: number of cells
-    cvt_samples: int = 50_000  # cvt: uniform samples clustered by k-means into centroids
-    kmeans_iters: int = 50  # cvt: Lloyd iterations
+    grid_shape: tuple[PositiveInt, ...] = (32, 32)  # grid: cells per descriptor dimension
+    num_centroids: PositiveInt = 1024  # cvt: number of cells
+    cvt_samples: PositiveInt = 50_000  # cvt: uniform samples clustered by k-means into centroids
+    kmeans_iters: PositiveInt = 50  # cvt: Lloyd iterations
 
     def check(self) -> None:
-        if any(n <= 0 for n in self.grid_shape) or not self.grid_shape:
-            raise ValueError(
-                f"repertoire.grid_shape: expected a list of positive integers, got {list(self.grid_shape)}"
-            )
-        for name in ("num_centroids", "cvt_samples", "kmeans_iters"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"repertoire.{name}: expected a positive integer, got {getattr(self, name)}")
+        if not self.grid_shape:
+            raise ValueError("repertoire.grid_shape: expected a list of positive integers, got []")
         if self.kind == "cvt" and self.cvt_samples < self.num_centroids:
             raise ValueError(
                 f"repertoire.cvt_samples: expected at least repertoire.num_centroids="
@@ -53,37 +60,24 @@ class EmitterConfig:
     """The `[emitter]` section: how offspring are made."""
 
     kind: Literal["isoline", "polynomial"] = "isoline"
-    batch_size: int = 1024  # offspring per iteration
-    iso_sigma: float = 0.05  # isoline: isotropic Gaussian noise (Vassiliades & Mouret 2018)
-    line_sigma: float = 0.1  # isoline: noise along the line between two parents
-    variation_percentage: float = 1.0  # share of the batch made by crossover/variation
-    eta: float = 0.05  # polynomial mutation: distribution index
-    proportion_to_mutate: float = 0.5  # polynomial mutation: share of genes mutated
-    crossover_proportion: float = 0.5  # polynomial crossover: share of genes exchanged
-
-    def check(self) -> None:
-        if self.batch_size <= 0:
-            raise ValueError(f"emitter.batch_size: expected a positive integer, got {self.batch_size}")
-        for name in ("iso_sigma", "line_sigma", "eta"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"emitter.{name}: expected a non-negative number, got {getattr(self, name)}")
-        for name in ("variation_percentage", "proportion_to_mutate", "crossover_proportion"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"emitter.{name}: expected a number in [0, 1], got {getattr(self, name)}")
+    batch_size: PositiveInt = 1024  # offspring per iteration
+    iso_sigma: NonNegativeFloat = 0.05  # isoline: isotropic Gaussian noise (Vassiliades & Mouret 2018)
+    line_sigma: NonNegativeFloat = 0.1  # isoline: noise along the line between two parents
+    variation_percentage: UnitFloat = 1.0  # share of the batch made by crossover/variation
+    eta: NonNegativeFloat = 0.05  # polynomial mutation: distribution index
+    proportion_to_mutate: UnitFloat = 0.5  # polynomial mutation: share of genes mutated
+    crossover_proportion: UnitFloat = 0.5  # polynomial crossover: share of genes exchanged
 
 
 @dataclasses.dataclass(frozen=True)
 class QDConfig:
     """The `[qd]` section: length of the run and logging."""
 
-    num_iterations: int = 1000  # emitter batches evaluated after the initial population
-    log_every: int = 50  # iterations between log points (one compiled chunk)
-    init_batch_size: int = 1024  # random genotypes evaluated to seed the repertoire
+    num_iterations: PositiveInt = 1000  # emitter batches evaluated after the initial population
+    log_every: PositiveInt = 50  # iterations between log points (one compiled chunk)
+    init_batch_size: PositiveInt = 1024  # random genotypes evaluated to seed the repertoire
 
     def check(self) -> None:
-        for name in ("num_iterations", "log_every", "init_batch_size"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"qd.{name}: expected a positive integer, got {getattr(self, name)}")
         if self.num_iterations % self.log_every:
             raise ValueError(
                 f"qd.num_iterations: expected a multiple of qd.log_every={self.log_every}, "
@@ -91,46 +85,75 @@ class QDConfig:
             )
 
 
-def build_task(
-    data: Mapping[str, Any], defaults: Mapping[str, Any] | None = None
-) -> tuple[Any, dict[str, Any]]:
-    """The task named by `data["name"]`, its other keys checked against the builder's signature.
+def parse_task(data: Any, defaults: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The `[task]` table resolved: its name and every parameter of the task's builder.
 
-    `defaults` fill the keys that the builder takes and `data` does not give (e.g. a
-    policy task's `eval_batch`, from the run's batch size).
+    Each key is checked against the annotation of the builder's parameter (type,
+    finiteness, declared range) without building the task. `defaults` fill the
+    keys that the builder takes and `data` does not give (e.g. a policy task's
+    `eval_batch`, from the run's batch size).
     """
     from qdrl.tasks import TASKS
 
-    if "name" not in data:
+    data = check_table(data, "task")
+    name = data.get("name")
+    if name is None:
         raise ConfigError(f"task.name: missing; expected one of {sorted(TASKS)}")
-    name = data["name"]
-    if name not in TASKS:
-        raise ConfigError(f"task.name: unknown task {name!r}; expected one of {sorted(TASKS)}")
+    if not isinstance(name, str) or name not in TASKS:
+        raise ConfigError(f"task.name: expected one of {sorted(TASKS)}, got {name!r}")
     builder: Callable[..., Any] = TASKS[name]
-    sig = inspect.signature(builder)
-    hints = typing.get_type_hints(builder)
-    params = {k: p for k, p in sig.parameters.items() if p.kind is p.KEYWORD_ONLY or p.kind is p.POSITIONAL_OR_KEYWORD}
-    kwargs: dict[str, Any] = {}
-    for key, value in data.items():
-        if key == "name":
-            continue
-        if key not in params:
-            raise ConfigError(f"task.{key}: unknown key for task {name!r}; expected one of {sorted(params)}")
-        kwargs[key] = coerce(value, hints.get(key, type(value)), f"task.{key}")
+    given = {k: v for k, v in data.items() if k != "name"}
+    kwargs = check_params(builder, given, "task", owner=f"task {name!r}")
+    params = inspect.signature(builder).parameters
     for key, value in (defaults or {}).items():
         if key in params and key not in kwargs:
             kwargs[key] = value
+    resolved: dict[str, Any] = {"name": name}
+    for key, p in params.items():
+        value = kwargs.get(key, p.default)
+        if value is inspect.Parameter.empty:
+            raise ConfigError(f"task.{key}: missing; task {name!r} needs it")
+        resolved[key] = list(value) if isinstance(value, tuple) else value
+    return resolved
+
+
+def make_task_of(table: Mapping[str, Any]) -> Task:
+    """The task of a resolved `[task]` table (`parse_task`): builds its environment, if any."""
+    from qdrl.tasks import TASKS
+
+    params = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items() if k != "name"}
     try:
-        task = builder(**kwargs)
+        return TASKS[table["name"]](**params)
     except ValueError as e:
         msg = str(e)
         raise ConfigError(msg if msg.startswith("task.") else f"task: {msg}") from e
-    resolved = {"name": name}
-    for key, p in params.items():
-        value = kwargs.get(key, p.default)
-        if value is not inspect.Parameter.empty:
-            resolved[key] = list(value) if isinstance(value, tuple) else value
-    return task, resolved
+
+
+def parse_qd(
+    spec: Mapping[str, Any],
+    exp: ExperimentConfig,
+    default_kind: str = "grid",
+    eval_batch: int | None = None,
+    with_emitter: bool = True,
+) -> Sections:
+    """The checked `[task]`, `[repertoire]`, `[emitter]` and `[qd]` sections of a QD spec.
+
+    `eval_batch`: the batch a policy task rolls out at once (default: emitter.batch_size).
+    """
+    del exp
+    rep_data = dict(check_table(spec.get("repertoire", {}), "repertoire"))
+    rep_data.setdefault("kind", default_kind)
+    repertoire = build(RepertoireConfig, rep_data, "repertoire")
+    emitter = build(EmitterConfig, spec.get("emitter", {}), "emitter") if with_emitter else None
+    qd = build(QDConfig, spec.get("qd", {}), "qd")
+    if eval_batch is None and emitter is not None:
+        eval_batch = emitter.batch_size
+    defaults = {} if eval_batch is None else {"eval_batch": eval_batch}
+    task = parse_task(spec.get("task", {"name": "arm"}), defaults)
+    sections: Sections = {"task": task, "repertoire": repertoire, "emitter": emitter, "qd": qd}
+    if emitter is None:
+        del sections["emitter"]
+    return sections
 
 
 class QDRun:
@@ -138,35 +161,22 @@ class QDRun:
 
     progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness", "evaluations_per_s")
 
-    def __init__(
-        self,
-        spec: Mapping[str, Any],
-        exp: ExperimentConfig,
-        default_kind: str,
-        eval_batch: int | None = None,
-    ) -> None:
-        """`eval_batch`: the batch a policy task rolls out at once (default: emitter.batch_size)."""
-        rep_data = dict(spec.get("repertoire", {}))
-        rep_data.setdefault("kind", default_kind)
-        rep_cfg = build(RepertoireConfig, rep_data, "repertoire")
-        emitter_cfg = build(EmitterConfig, spec.get("emitter", {}), "emitter")
-        qd_cfg = build(QDConfig, spec.get("qd", {}), "qd")
-        if eval_batch is None:
-            eval_batch = emitter_cfg.batch_size
-        self._task, task_table = build_task(
-            spec.get("task", {"name": "arm"}), defaults={"eval_batch": eval_batch}
-        )
+    def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
+        """Builds the task of checked `sections` (`parse_qd`); the rest is built by `init`."""
+        self.sections = dict(sections)
+        self.rep_cfg: RepertoireConfig = sections["repertoire"]
+        self.emitter_cfg: EmitterConfig | None = sections.get("emitter")
+        self.qd_cfg: QDConfig = sections["qd"]
+        self._task = make_task_of(sections["task"])
         dim = len(self._task.descriptor_low)
-        if rep_cfg.kind == "grid" and len(rep_cfg.grid_shape) != dim:
+        if self.rep_cfg.kind == "grid" and len(self.rep_cfg.grid_shape) != dim:
             raise ConfigError(
                 f"repertoire.grid_shape: expected {dim} entries (the descriptor size of task "
-                f"{self._task.name!r}), got {list(rep_cfg.grid_shape)}"
+                f"{self._task.name!r}), got {list(self.rep_cfg.grid_shape)}"
             )
         self.algorithm = exp.algorithm
-        self.task = str(task_table["name"])
-        self.sections = {"task": task_table, "repertoire": rep_cfg, "emitter": emitter_cfg, "qd": qd_cfg}
-        self.rep_cfg, self.emitter_cfg, self.qd_cfg = rep_cfg, emitter_cfg, qd_cfg
-        self.num_chunks = qd_cfg.num_iterations // qd_cfg.log_every
+        self.task = str(sections["task"]["name"])
+        self.num_chunks = self.qd_cfg.num_iterations // self.qd_cfg.log_every
         self.seed = exp.seed
         self._chunk: Any = None
         self.map_elites: MapElites | None = None
@@ -191,6 +201,7 @@ class QDRun:
             )
             repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
         def make_ga(batch_size: int) -> Emitter:
+            assert ec is not None, "a run without [emitter] builds no GA"
             if ec.kind == "isoline":
                 return isoline_emitter(
                     batch_size, ec.iso_sigma, ec.line_sigma, lo, hi,
@@ -206,7 +217,13 @@ class QDRun:
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         """The run's emitter; `make_ga(n)` is the GA emitter of the `[emitter]` section with n offspring."""
-        return make_ga(self.emitter_cfg.batch_size)
+        return make_ga(self.batch_size)
+
+    @property
+    def batch_size(self) -> int:
+        """`emitter.batch_size` (runs without an `[emitter]` section override `_emitter`)."""
+        assert self.emitter_cfg is not None
+        return self.emitter_cfg.batch_size
 
     def init(self, key: jax.Array) -> QDState:
         cvt_key, init_key, run_key = jax.random.split(key, 3)
@@ -255,14 +272,8 @@ class QDRun:
         return {"qd_offset": self._task.qd_offset}
 
 
-@register("map_elites")
-def _map_elites(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDRun:
-    return QDRun(spec, exp, default_kind="grid")
-
-
-@register("cvt_map_elites")
-def _cvt_map_elites(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDRun:
-    return QDRun(spec, exp, default_kind="cvt")
+register("map_elites", functools.partial(parse_qd, default_kind="grid"), QDRun)
+register("cvt_map_elites", functools.partial(parse_qd, default_kind="cvt"), QDRun)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -270,13 +281,7 @@ class PGSection(PGConfig):
     """The `[pg]` section of PGA-ME: the Q-PG emitter's TD3 and its share of the batch."""
 
     # Share of `emitter.batch_size` made by the GA; the rest by Q-PG (QDax's PGA-ME: 0.5).
-    proportion_mutation_ga: float = 0.5
-
-    def check(self, section: str = "pg") -> None:
-        super().check(section)
-        p = self.proportion_mutation_ga
-        if not 0.0 < p < 1.0:
-            raise ValueError(f"{section}.proportion_mutation_ga: expected a number in (0, 1), got {p!r}")
+    proportion_mutation_ga: Annotated[float, Range(0.0, 1.0, low_open=True, high_open=True)] = 0.5
 
 
 def policy_spec(task: Any, task_table: Mapping[str, Any]) -> tuple[Any, int, int]:
@@ -314,11 +319,11 @@ def policy_spec(task: Any, task_table: Mapping[str, Any]) -> tuple[Any, int, int
     return network, obs_size, action_size
 
 
-def check_replay_buffer(run: QDRun, section: str, capacity: int) -> None:
+def check_replay_buffer(sections: Sections, section: str, capacity: int) -> None:
     """Raises ConfigError unless one evaluated batch of episodes fits in the replay buffer."""
-    steps = run.sections["task"].get("episode_length")
-    for name, batch in (("emitter.batch_size", run.emitter_cfg.batch_size),
-                        ("qd.init_batch_size", run.qd_cfg.init_batch_size)):
+    steps = sections["task"].get("episode_length")
+    for name, batch in (("emitter.batch_size", sections["emitter"].batch_size),
+                        ("qd.init_batch_size", sections["qd"].init_batch_size)):
         if steps is not None and int(steps) * batch > capacity:
             raise ConfigError(
                 f"{section}.replay_buffer_size: expected at least {name} x task.episode_length = "
@@ -326,18 +331,26 @@ def check_replay_buffer(run: QDRun, section: str, capacity: int) -> None:
             )
 
 
+def parse_pga_me(
+    spec: Mapping[str, Any], exp: ExperimentConfig, pg_section: type[PGConfig] = PGSection
+) -> Sections:
+    """The checked sections of a PGA-ME spec: those of `parse_qd` (CVT by default) and `[pg]`."""
+    sections = parse_qd(spec, exp, default_kind="cvt")
+    sections["pg"] = build(pg_section, spec.get("pg", {}), "pg")
+    check_replay_buffer(sections, "pg", sections["pg"].replay_buffer_size)
+    return sections
+
+
 class PGAMERun(QDRun):
     """PGA-ME (Nilsson & Cully 2021): the GA of `[emitter]` and a Q-PG emitter (`[pg]`)."""
 
     progress_keys = (*QDRun.progress_keys, "critic_steps")
-    pg_section: type[PGConfig] = PGSection
 
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
-        super().__init__(spec, exp, default_kind="cvt")
-        self.pg_cfg = build(self.pg_section, spec.get("pg", {}), "pg")
-        self.sections["pg"] = self.pg_cfg
+    def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
+        """Builds the task of checked `sections` (`parse_pga_me`) and sizes its policy network."""
+        super().__init__(sections, exp)
+        self.pg_cfg: PGConfig = sections["pg"]
         self._policy = policy_spec(self._task, self.sections["task"])
-        check_replay_buffer(self, "pg", self.pg_cfg.replay_buffer_size)
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         from qdrl.qd.emitters.pg import pga_me_emitter
@@ -346,7 +359,7 @@ class PGAMERun(QDRun):
         pg = dataclasses.asdict(self.pg_cfg)
         share = pg.pop("proportion_mutation_ga")
         return pga_me_emitter(
-            self.emitter_cfg.batch_size, network, obs_size, action_size, PGConfig(**pg),
+            self.batch_size, network, obs_size, action_size, PGConfig(**pg),
             proportion_mutation_ga=share, make_ga=make_ga,
         )
 
@@ -363,36 +376,28 @@ class DPGSection:
     """The `[dpg]` section of QD-PG: batch shares and the novelty archive of the D-PG emitter."""
 
     # Shares of emitter.batch_size for the GA, Q-PG and D-PG emitters.
-    shares: tuple[float, ...] = (0.34, 0.33, 0.33)
+    shares: tuple[PositiveFloat, ...] = (0.34, 0.33, 0.33)
     # A descriptor enters the archive if farther than this from all stored (QDax: 0.1).
-    acceptance_threshold: float = 0.1
-    archive_max_size: int = 10_000
+    acceptance_threshold: PositiveFloat = 0.1
+    archive_max_size: PositiveInt = 10_000
     # k of the k-nearest-neighbour novelty reward (QDax: 5).
-    num_neighbours: int = 5
+    num_neighbours: PositiveInt = 5
     # Visited descriptors offered to the archive per update.
-    candidates_per_update: int = 256
-    novelty_scale: float = 1.0
+    candidates_per_update: PositiveInt = 256
+    novelty_scale: PositiveFloat = 1.0
 
     def check(self) -> None:
-        if len(self.shares) != 3 or any(v <= 0 for v in self.shares):
+        if len(self.shares) != 3:
             raise ValueError(f"dpg.shares: expected 3 positive numbers (GA, Q-PG, D-PG), got {list(self.shares)}")
-        for name in ("archive_max_size", "num_neighbours", "candidates_per_update"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"dpg.{name}: expected a positive integer, got {getattr(self, name)}")
-        for name in ("acceptance_threshold", "novelty_scale"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"dpg.{name}: expected a number > 0, got {getattr(self, name)}")
 
 
 class QDPGRun(PGAMERun):
     """QD-PG (Pierrot et al. 2022): GA (`[emitter]`), Q-PG (`[pg]`) and D-PG (`[pg]`, `[dpg]`)."""
 
-    pg_section = PGConfig
-
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
-        super().__init__(spec, exp)
-        self.dpg_cfg = build(DPGSection, spec.get("dpg", {}), "dpg")
-        self.sections["dpg"] = self.dpg_cfg
+    def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
+        """Builds the task of checked `sections` (`parse_qdpg`) and sizes its policy network."""
+        super().__init__(sections, exp)
+        self.dpg_cfg: DPGSection = sections["dpg"]
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         from qdrl.qd.emitters.novelty import NoveltyReward, qdpg_emitter
@@ -405,7 +410,7 @@ class QDPGRun(PGAMERun):
         )
         shares = (d.shares[0], d.shares[1], d.shares[2])
         return qdpg_emitter(
-            self.emitter_cfg.batch_size, network, obs_size, action_size,
+            self.batch_size, network, obs_size, action_size,
             self._task.descriptor_size, self.pg_cfg, shares, reward, make_ga,
         )
 
@@ -415,14 +420,15 @@ class QDPGRun(PGAMERun):
         return row
 
 
-@register("pga_me")
-def _pga_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> PGAMERun:
-    return PGAMERun(spec, exp)
+def parse_qdpg(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
+    """The checked sections of a QD-PG spec: those of PGA-ME (`[pg]` without the GA share) and `[dpg]`."""
+    sections = parse_pga_me(spec, exp, pg_section=PGConfig)
+    sections["dpg"] = build(DPGSection, spec.get("dpg", {}), "dpg")
+    return sections
 
 
-@register("qdpg")
-def _qdpg(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDPGRun:
-    return QDPGRun(spec, exp)
+register("pga_me", parse_pga_me, PGAMERun)
+register("qdpg", parse_qdpg, QDPGRun)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -435,16 +441,12 @@ class DCRLSection(DCRLConfig):
     """
 
     # Offspring per iteration made by descriptor-conditioned PG steps on parents (QDax: 64).
-    dcrl_batch_size: int = 64
+    dcrl_batch_size: NonNegativeInt = 64
     # Offspring per iteration made by injecting the DC actor at elites' descriptors (QDax: 64).
-    ai_batch_size: int = 64
+    ai_batch_size: NonNegativeInt = 64
 
     def check(self, section: str = "dcrl") -> None:
         super().check(section)
-        for name in ("dcrl_batch_size", "ai_batch_size"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
-                raise ValueError(f"{section}.{name}: expected an integer >= 0, got {value!r}")
         if self.dcrl_batch_size + self.ai_batch_size < 1:
             raise ValueError(
                 f"{section}.dcrl_batch_size: expected dcrl_batch_size + ai_batch_size >= 1, got "
@@ -457,22 +459,16 @@ class DCRLMERun(QDRun):
 
     progress_keys = (*QDRun.progress_keys, "critic_steps")
 
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
-        super().__init__(spec, exp, default_kind="cvt")
-        data = dict(spec.get("dcrl", {}))
+    def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
+        """Builds the task of checked `sections` (`parse_dcrl_me`), completes `[dcrl]` with the
+        task's reward offset unless the spec gives one, and sizes the policy network."""
+        super().__init__(sections, exp)
+        data = dict(sections["dcrl"])
         if "reward_offset" not in data and getattr(self._task, "env", None) is not None:
             data["reward_offset"] = -float(self._task.qd_offset) / int(self._task.env.episode_length)
-        self.dcrl_cfg = build(DCRLSection, data, "dcrl")
+        self.dcrl_cfg: DCRLSection = build(DCRLSection, data, "dcrl")
         self.sections["dcrl"] = self.dcrl_cfg
         self._policy = policy_spec(self._task, self.sections["task"])
-        own = self.dcrl_cfg.dcrl_batch_size + self.dcrl_cfg.ai_batch_size
-        if own >= self.emitter_cfg.batch_size:
-            raise ConfigError(
-                f"dcrl.dcrl_batch_size: expected dcrl.dcrl_batch_size + dcrl.ai_batch_size below "
-                f"emitter.batch_size={self.emitter_cfg.batch_size} (the GA makes the rest), got "
-                f"{self.dcrl_cfg.dcrl_batch_size} + {self.dcrl_cfg.ai_batch_size}"
-            )
-        check_replay_buffer(self, "dcrl", self.dcrl_cfg.replay_buffer_size)
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         from qdrl.qd.emitters.dcrl import dcrl_me_emitter
@@ -481,7 +477,7 @@ class DCRLMERun(QDRun):
         cfg = dataclasses.asdict(self.dcrl_cfg)
         num_pg, num_ai = cfg.pop("dcrl_batch_size"), cfg.pop("ai_batch_size")
         return dcrl_me_emitter(
-            self.emitter_cfg.batch_size, network, obs_size, action_size,
+            self.batch_size, network, obs_size, action_size,
             self._task.descriptor_low, self._task.descriptor_high, DCRLConfig(**cfg),
             dcrl_batch_size=num_pg, ai_batch_size=num_ai, make_ga=make_ga,
         )
@@ -494,52 +490,59 @@ class DCRLMERun(QDRun):
         return row
 
 
-@register("dcrl_me")
-def _dcrl_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> DCRLMERun:
-    return DCRLMERun(spec, exp)
+def parse_dcrl_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
+    """The checked sections of a DCRL-ME spec: those of `parse_qd` (CVT by default) and `[dcrl]`.
+
+    `[dcrl]` stays a table of the keys the spec gives (each checked, and the whole
+    section checked with the default reward offset): the run completes it with the
+    task's reward offset when the spec gives none (`DCRLMERun`).
+    """
+    sections = parse_qd(spec, exp, default_kind="cvt")
+    data = dict(check_table(spec.get("dcrl", {}), "dcrl"))
+    cfg = build(DCRLSection, data, "dcrl")
+    batch = sections["emitter"].batch_size
+    if cfg.dcrl_batch_size + cfg.ai_batch_size >= batch:
+        raise ConfigError(
+            f"dcrl.dcrl_batch_size: expected dcrl.dcrl_batch_size + dcrl.ai_batch_size below "
+            f"emitter.batch_size={batch} (the GA makes the rest), got "
+            f"{cfg.dcrl_batch_size} + {cfg.ai_batch_size}"
+        )
+    check_replay_buffer(sections, "dcrl", cfg.replay_buffer_size)
+    sections["dcrl"] = {k: getattr(cfg, k) for k in data}
+    return sections
+
+
+register("dcrl_me", parse_dcrl_me, DCRLMERun)
 
 
 @dataclasses.dataclass(frozen=True)
 class ESSection:
     """The `[es]` section of ME-ES (Colas et al. 2020): the OpenAI-ES emitter around one elite."""
 
-    population_size: int = 64  # perturbations per generation (mirrored pairs; even)
-    sigma: float = 0.02  # std of the parameter perturbations
-    learning_rate: float = 0.01  # Adam step size on the search centre
-    l2_coefficient: float = 0.005  # weight decay of the centre
-    num_optimizer_steps: int = 10  # generations before restarting from an elite
+    population_size: Annotated[int, Range(low=2)] = 64  # perturbations per generation (mirrored pairs; even)
+    sigma: PositiveFloat = 0.02  # std of the parameter perturbations
+    learning_rate: PositiveFloat = 0.01  # Adam step size on the search centre
+    l2_coefficient: NonNegativeFloat = 0.005  # weight decay of the centre
+    num_optimizer_steps: PositiveInt = 10  # generations before restarting from an elite
     objective: Literal["fitness", "novelty", "explore_exploit"] = "explore_exploit"
-    novelty_neighbours: int = 10  # k of the k-nearest-neighbour novelty
-    archive_size: int = 10_000  # slots of the novelty archive of descriptors
-    exploit_num_cells: int = 2  # restarts for fitness draw among this many fittest elites
-    explore_num_cells: int = 5  # restarts for novelty draw among this many most novel elites
-    last_updated_size: int = 5  # cells last improved by the emitter, a second pool for exploit
+    novelty_neighbours: PositiveInt = 10  # k of the k-nearest-neighbour novelty
+    archive_size: PositiveInt = 10_000  # slots of the novelty archive of descriptors
+    exploit_num_cells: PositiveInt = 2  # restarts for fitness draw among this many fittest elites
+    explore_num_cells: PositiveInt = 5  # restarts for novelty draw among this many most novel elites
+    last_updated_size: PositiveInt = 5  # cells last improved by the emitter, a second pool for exploit
 
     def check(self) -> None:
-        if self.population_size < 2 or self.population_size % 2:
+        if self.population_size % 2:
             raise ValueError(f"es.population_size: expected an even integer >= 2, got {self.population_size}")
-        for name in ("sigma", "learning_rate"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"es.{name}: expected a number > 0, got {getattr(self, name)}")
-        if self.l2_coefficient < 0:
-            raise ValueError(f"es.l2_coefficient: expected a number >= 0, got {self.l2_coefficient}")
-        for name in ("num_optimizer_steps", "novelty_neighbours", "archive_size",
-                     "exploit_num_cells", "explore_num_cells", "last_updated_size"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"es.{name}: expected a positive integer, got {getattr(self, name)}")
 
 
 class MEESRun(QDRun):
     """ME-ES (Colas et al. 2020): MAP-Elites whose only emitter is OpenAI-ES around one elite (`[es]`)."""
 
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
-        if "emitter" in spec:
-            raise ConfigError("emitter: ME-ES has no GA emitter; its settings are in [es]")
-        es_cfg = build(ESSection, spec.get("es", {}), "es")
-        super().__init__(spec, exp, default_kind="cvt", eval_batch=es_cfg.population_size + 1)
-        del self.sections["emitter"]
-        self.es_cfg = es_cfg
-        self.sections["es"] = self.es_cfg
+    def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
+        """Builds the task of checked `sections` (`parse_me_es`)."""
+        super().__init__(sections, exp)
+        self.es_cfg: ESSection = sections["es"]
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         from qdrl.qd.emitters.es import ESEmitter
@@ -554,6 +557,14 @@ class MEESRun(QDRun):
         )
 
 
-@register("me_es")
-def _me_es(spec: Mapping[str, Any], exp: ExperimentConfig) -> MEESRun:
-    return MEESRun(spec, exp)
+def parse_me_es(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
+    """The checked sections of an ME-ES spec: `[task]`, `[repertoire]`, `[qd]` and `[es]` (no `[emitter]`)."""
+    if "emitter" in spec:
+        raise ConfigError("emitter: ME-ES has no GA emitter; its settings are in [es]")
+    es = build(ESSection, spec.get("es", {}), "es")
+    sections = parse_qd(spec, exp, default_kind="cvt", eval_batch=es.population_size + 1, with_emitter=False)
+    sections["es"] = es
+    return sections
+
+
+register("me_es", parse_me_es, MEESRun)

@@ -5,45 +5,31 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal, NamedTuple
+from typing import Annotated, Any, Literal, NamedTuple
 
 import jax
 import numpy as np
 
-from qdrl.config import ConfigError, build
+from qdrl.config import ConfigError, OneOf, PositiveInt, build
 from qdrl.envs import env_names, make
-from qdrl.envs.brax import BACKENDS, STATE_DESCRIPTORS
-from qdrl.experiment import ExperimentConfig, register
+from qdrl.envs.brax import STATE_DESCRIPTORS, Backend
+from qdrl.experiment import ExperimentConfig, Sections, register
 from qdrl.off_policy import TrainConfig, TrainState, make_trainer
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
 
-Backend = Literal["spring", "positional", "generalized", "mjx"]
-assert set(BACKENDS) == {"spring", "positional", "generalized", "mjx"}
+EnvName = Annotated[str, OneOf(env_names)]
+StateDescriptor = Annotated[str, OneOf(lambda: STATE_DESCRIPTORS)]
 
 
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
     """The `[env]` section: which brax environment, on which physics backend."""
 
-    name: str = "halfcheetah"  # "point" or a brax registry name (`qdrl list` shows them)
+    name: EnvName = "halfcheetah"  # "point" or a brax registry name (`qdrl list` shows them)
     backend: Backend = "spring"  # brax physics pipeline
-    episode_length: int = 1000  # steps before truncation
-    state_descriptor: str = "xy"  # brax: state descriptor recorded with every transition
-
-    def check(self) -> None:
-        names = env_names()
-        if self.name not in names:
-            raise ValueError(f"env.name: unknown environment {self.name!r}; expected one of {names}")
-        if self.episode_length <= 0:
-            raise ValueError(
-                f"env.episode_length: expected a positive integer, got {self.episode_length}"
-            )
-        if self.state_descriptor not in STATE_DESCRIPTORS:
-            raise ValueError(
-                f"env.state_descriptor: expected one of {sorted(STATE_DESCRIPTORS)}, "
-                f"got {self.state_descriptor!r}"
-            )
+    episode_length: PositiveInt = 1000  # steps before truncation
+    state_descriptor: StateDescriptor = "xy"  # brax: state descriptor recorded with every transition
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,16 +40,14 @@ class ArchiveConfig:
     """
 
     descriptor: Literal["final", "mean"] = "final"  # last or episode-averaged state descriptor
-    grid_shape: tuple[int, ...] = (32, 32)  # cells per descriptor dimension
+    grid_shape: tuple[PositiveInt, ...] = (32, 32)  # cells per descriptor dimension
     low: tuple[float, ...] = (-50.0, -50.0)  # descriptor lower bounds (edge cells beyond)
     high: tuple[float, ...] = (50.0, 50.0)  # descriptor upper bounds
     qd_offset: float = 0.0  # QD score = sum over cells of (return - qd_offset)
 
     def check(self) -> None:
-        if not self.grid_shape or any(n <= 0 for n in self.grid_shape):
-            raise ValueError(
-                f"archive.grid_shape: expected a list of positive integers, got {list(self.grid_shape)}"
-            )
+        if not self.grid_shape:
+            raise ValueError("archive.grid_shape: expected a list of positive integers, got []")
         if len(self.low) != len(self.grid_shape) or len(self.high) != len(self.grid_shape):
             raise ValueError(
                 f"archive.low / archive.high: expected {len(self.grid_shape)} entries each "
@@ -74,6 +58,19 @@ class ArchiveConfig:
                 f"archive.low: expected every entry below archive.high, got {list(self.low)} "
                 f"and {list(self.high)}"
             )
+
+
+def parse_off_policy(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
+    """The checked sections of a SAC or TD3 spec (`exp.algorithm` names the agent)."""
+    from qdrl.agents import AGENTS
+
+    config_cls, _ = AGENTS[exp.algorithm]
+    return {
+        "env": build(EnvConfig, spec.get("env", {}), "env"),
+        "agent": build(config_cls, spec.get("agent", {}), "agent"),
+        "train": build(TrainConfig, spec.get("train", {}), "train"),
+        "archive": build(ArchiveConfig, spec.get("archive", {}), "archive"),
+    }
 
 
 class RLState(NamedTuple):
@@ -88,17 +85,16 @@ class OffPolicyRun:
 
     progress_keys: tuple[str, ...] = ("eval_return", "coverage")
 
-    def __init__(self, spec: Mapping[str, Any], exp: ExperimentConfig) -> None:
+    def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
+        """Builds the environment, agent and trainer of checked `sections` (`parse_off_policy`)."""
         from qdrl.agents import AGENTS
 
-        config_cls, make_agent = AGENTS[exp.algorithm]
-        env_cfg = build(EnvConfig, spec.get("env", {}), "env")
-        agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
-        train_cfg = build(TrainConfig, spec.get("train", {}), "train")
-        archive_cfg = build(ArchiveConfig, spec.get("archive", {}), "archive")
+        _, make_agent = AGENTS[exp.algorithm]
+        env_cfg, agent_cfg = sections["env"], sections["agent"]
+        train_cfg, archive_cfg = sections["train"], sections["archive"]
         self.algorithm = exp.algorithm
         self.task = env_cfg.name
-        self.sections = {"env": env_cfg, "agent": agent_cfg, "train": train_cfg, "archive": archive_cfg}
+        self.sections = dict(sections)
         self.archive_cfg = archive_cfg
         from qdrl.envs import JUMANJI_ENVS, PURE_JAX_ENVS
 
@@ -166,11 +162,5 @@ class OffPolicyRun:
         return {"grad_steps": int(np.asarray(state.train.grad_steps))}
 
 
-@register("sac")
-def _sac(spec: Mapping[str, Any], exp: ExperimentConfig) -> OffPolicyRun:
-    return OffPolicyRun(spec, exp)
-
-
-@register("td3")
-def _td3(spec: Mapping[str, Any], exp: ExperimentConfig) -> OffPolicyRun:
-    return OffPolicyRun(spec, exp)
+register("sac", parse_off_policy, OffPolicyRun)
+register("td3", parse_off_policy, OffPolicyRun)

@@ -19,9 +19,10 @@ task's descriptor bounds and QD offset).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import jax
 import jax.numpy as jnp
@@ -34,10 +35,11 @@ from qdrl.agents.diayn import DIAYNConfig, make_diayn_module
 from qdrl.agents.intrinsic import RewardModule, with_skill_model
 from qdrl.agents.sac import SACConfig, make_sac
 from qdrl.agents.smerl import SMERLConfig, smerl_gate
-from qdrl.config import ConfigError, build
+from qdrl.config import ConfigError, OneOf, PositiveInt, build, check_keys, check_table
 from qdrl.envs.base import Env
+from qdrl.envs.brax import Backend
 from qdrl.envs.skills import SkillEnv, append_skill
-from qdrl.experiment import ExperimentConfig, register
+from qdrl.experiment import ExperimentConfig, Sections, register
 from qdrl.off_policy import TrainConfig, make_trainer
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import observe
@@ -46,7 +48,7 @@ from qdrl.runners.rl import ArchiveConfig, OffPolicyRun, RLState
 from qdrl.tasks import Task, make_task
 from qdrl.types import Array, PRNGKey
 
-Backend = Literal["spring", "positional", "generalized", "mjx"]
+SkillTaskName = Annotated[str, OneOf(lambda: SKILL_TASKS)]
 
 
 # The QD tasks (`qdrl.tasks`) a skill-discovery run can use: their environment,
@@ -67,19 +69,9 @@ def skill_task(name: str, episode_length: int, backend: str) -> Task:
 class SkillEnvConfig:
     """The `[env]` section: which task, on which physics backend (brax tasks)."""
 
-    task: str = "ant_omni"  # one of SKILL_TASKS
+    task: SkillTaskName = "ant_omni"  # one of SKILL_TASKS
     backend: Backend = "spring"  # brax physics pipeline (ignored by point_maze)
-    episode_length: int = 1000  # steps before truncation
-
-    def check(self) -> None:
-        if self.task not in SKILL_TASKS:
-            raise ValueError(
-                f"env.task: unknown task {self.task!r}; expected one of {sorted(SKILL_TASKS)}"
-            )
-        if self.episode_length <= 0:
-            raise ValueError(
-                f"env.episode_length: expected a positive integer, got {self.episode_length}"
-            )
+    episode_length: PositiveInt = 1000  # steps before truncation
 
 
 def _skill_module(
@@ -93,50 +85,24 @@ def _skill_module(
 class SkillRun(OffPolicyRun):
     """DIAYN / DADS / SMERL: trainer chunks, then every skill evaluated into a passive archive."""
 
-    def __init__(
-        self,
-        spec: Mapping[str, Any],
-        exp: ExperimentConfig,
-        base: Literal["diayn", "dads"],
-        smerl: bool,
-    ) -> None:
-        env_cfg = build(SkillEnvConfig, spec.get("env", {}), "env")
+    def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
+        """Builds the task, environment, agent and trainer of checked `sections` (`parse_skills`),
+        completing `[archive]` with the task's descriptor bounds and QD offset."""
+        env_cfg, agent_cfg, train_cfg = sections["env"], sections["agent"], sections["train"]
+        skills_cfg = sections["skills"]
         task = skill_task(env_cfg.task, env_cfg.episode_length, env_cfg.backend)
-        agent_cfg = build(SACConfig, spec.get("agent", {}), "agent")
-        train_cfg = build(TrainConfig, spec.get("train", {}), "train")
-        skills_cls = DIAYNConfig if base == "diayn" else DADSConfig
-        skills_data = dict(spec.get("skills", {}))
-        if smerl:
-            # SMERL optimises the task reward (weight 1 in Kumar et al. 2020, eq. 3).
-            skills_data.setdefault("extrinsic_scale", 1.0)
-        skills_cfg = build(skills_cls, skills_data, "skills")
         archive_defaults = {
             "descriptor": task.episode_descriptor,
             "low": list(task.descriptor_low),
             "high": list(task.descriptor_high),
             "qd_offset": task.qd_offset,
         }
-        archive_cfg = build(
-            ArchiveConfig, {**archive_defaults, **spec.get("archive", {})}, "archive"
-        )
-        self.sections: dict[str, Any] = {
-            "env": env_cfg,
-            "agent": agent_cfg,
-            "train": train_cfg,
-            "skills": skills_cfg,
-            "archive": archive_cfg,
-        }
+        archive_cfg = build(ArchiveConfig, {**archive_defaults, **sections["archive"]}, "archive")
+        self.sections = {**sections, "archive": archive_cfg}
         gate = None
-        if smerl:
-            smerl_cfg = build(SMERLConfig, spec.get("smerl", {}), "smerl")
-            self.sections["smerl"] = smerl_cfg
-            gate = smerl_gate(smerl_cfg.target, smerl_cfg.margin)
+        if "smerl" in sections:
+            gate = smerl_gate(sections["smerl"].target, sections["smerl"].margin)
         k = skills_cfg.num_skills
-        if train_cfg.num_eval_envs % k:
-            raise ConfigError(
-                f"train.num_eval_envs: expected a multiple of skills.num_skills={k} (every "
-                f"skill is evaluated the same number of times), got {train_cfg.num_eval_envs}"
-            )
         self.algorithm = exp.algorithm
         self.task = env_cfg.task
         self.archive_cfg = archive_cfg
@@ -156,7 +122,7 @@ class SkillRun(OffPolicyRun):
             msg = str(e)
             raise ConfigError(msg if msg.startswith("skills.") else f"agent: {msg}") from e
         self.agent: Agent = with_skill_model(sac, self.module, skills_cfg, gate)
-        storage = off_policy.EPISODE_RETURNS if smerl else off_policy.REPLAY
+        storage = off_policy.EPISODE_RETURNS if gate is not None else off_policy.REPLAY
         self.trainer = make_trainer(self.env, self.agent, train_cfg, storage)
         self.num_eval = train_cfg.num_eval_envs
         self.num_chunks = train_cfg.num_chunks
@@ -281,18 +247,41 @@ def skill_trainer_builder(
     return build
 
 
-def _register_skill_runs() -> None:
-    for name in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
-        base: Literal["diayn", "dads"] = "dads" if name.endswith("dads") else "diayn"
-        smerl = name.startswith("smerl")
+def parse_skills(
+    spec: Mapping[str, Any], exp: ExperimentConfig, base: Literal["diayn", "dads"], smerl: bool
+) -> Sections:
+    """The checked sections of a DIAYN / DADS (`base`) spec, SMERL on it if `smerl`.
 
-        def builder(
-            spec: Mapping[str, Any], exp: ExperimentConfig, base: Literal["diayn", "dads"] = base,
-            smerl: bool = smerl,
-        ) -> SkillRun:
-            return SkillRun(spec, exp, base, smerl)
+    `[archive]` stays a table of the keys the spec gives (each checked): the run
+    completes it with its task's descriptor bounds and QD offset (`SkillRun`).
+    """
+    del exp
+    env = build(SkillEnvConfig, spec.get("env", {}), "env")
+    agent = build(SACConfig, spec.get("agent", {}), "agent")
+    train = build(TrainConfig, spec.get("train", {}), "train")
+    skills_data = dict(check_table(spec.get("skills", {}), "skills"))
+    if smerl:
+        # SMERL optimises the task reward (weight 1 in Kumar et al. 2020, eq. 3).
+        skills_data.setdefault("extrinsic_scale", 1.0)
+    skills = build(DIAYNConfig if base == "diayn" else DADSConfig, skills_data, "skills")
+    archive = check_keys(ArchiveConfig, spec.get("archive", {}), "archive")
+    sections: Sections = {"env": env, "agent": agent, "train": train, "skills": skills, "archive": archive}
+    if smerl:
+        sections["smerl"] = build(SMERLConfig, spec.get("smerl", {}), "smerl")
+    k = skills.num_skills
+    if train.num_eval_envs % k:
+        raise ConfigError(
+            f"train.num_eval_envs: expected a multiple of skills.num_skills={k} (every "
+            f"skill is evaluated the same number of times), got {train.num_eval_envs}"
+        )
+    return sections
 
-        register(name)(builder)
 
-
-_register_skill_runs()
+for _name in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
+    register(
+        _name,
+        functools.partial(
+            parse_skills, base="dads" if _name.endswith("dads") else "diayn", smerl=_name.startswith("smerl")
+        ),
+        SkillRun,
+    )

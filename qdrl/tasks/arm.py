@@ -12,6 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from qdrl.config import NonNegativeFloat, PositiveInt
 from qdrl.qd.base import Evaluation
 from qdrl.tasks.base import Task, batched_scoring_fn, check_genotypes
 from qdrl.types import Array, PRNGKey
@@ -41,7 +42,7 @@ def arm_evaluate(genotype: Array) -> tuple[Array, Array]:
     return fitness, jnp.stack([x, y])
 
 
-def arm(num_dofs: int = 100) -> Task:
+def arm(num_dofs: PositiveInt = 100) -> Task:
     """Planar arm with `num_dofs` joints (QDax `arm_scoring_function`).
 
     qd_offset = -0.5: the standard deviation of numbers in [0, 1] is at most 0.5,
@@ -63,10 +64,10 @@ def arm(num_dofs: int = 100) -> Task:
 
 
 def noisy_arm(
-    num_dofs: int = 100,
-    fit_std: float = 0.1,
-    desc_std: float = 0.1,
-    params_std: float = 0.05,
+    num_dofs: PositiveInt = 100,
+    fit_std: NonNegativeFloat = 0.1,
+    desc_std: NonNegativeFloat = 0.1,
+    params_std: NonNegativeFloat = 0.05,
 ) -> Task:
     """Planar arm with Gaussian noise (QDax `noisy_arm_scoring_function`).
 

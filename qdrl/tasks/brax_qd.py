@@ -55,7 +55,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from qdrl.envs.brax import BraxEnv
+from qdrl.config import PositiveInt
+from qdrl.envs.brax import Backend, BraxEnv
 from qdrl.tasks.base import Task
 from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, EpisodeDescriptor, policy_task
 
@@ -84,7 +85,7 @@ MAZE_MAX_DISTANCE = max(
     for y in (MAZE_BOUNDS[0][1], MAZE_BOUNDS[1][1])
 )
 
-DEFAULT_BACKEND = "spring"
+DEFAULT_BACKEND: Backend = "spring"
 
 
 def brax_policy_task(
@@ -139,10 +140,10 @@ def _omni(
 
 
 def ant_uni(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Ant, feet-contact rates of its 4 feet in [0, 1]^4; fitness = brax's ant reward summed.
 
@@ -154,10 +155,10 @@ def ant_uni(
 
 
 def halfcheetah_uni(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """HalfCheetah, feet-contact rates (back foot, front foot) in [0, 1]^2; fitness = its reward.
 
@@ -168,10 +169,10 @@ def halfcheetah_uni(
 
 
 def walker2d_uni(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Walker2d, feet-contact rates (right foot, left foot) in [0, 1]^2; fitness = its reward.
 
@@ -182,10 +183,10 @@ def walker2d_uni(
 
 
 def hopper_uni(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Hopper, contact rate of its foot in [0, 1]; fitness = its reward.
 
@@ -196,10 +197,10 @@ def hopper_uni(
 
 
 def humanoid_uni(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Humanoid, contact rates of its feet (right, left; the shin links) in [0, 1]^2.
 
@@ -211,10 +212,10 @@ def humanoid_uni(
 
 
 def ant_omni(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Ant, final torso x-y in [-30, 30]^2; fitness = survival - control cost (no forward term).
 
@@ -225,10 +226,10 @@ def ant_omni(
 
 
 def humanoid_omni(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Humanoid, final torso x-y in [-30, 30]^2; fitness = survival - control cost.
 
@@ -239,10 +240,10 @@ def humanoid_omni(
 
 
 def ant_trap(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """QDax's AntTrap: final torso x-y in [0, 30] x [-8, 8]; fitness = the ant's reward.
 
@@ -264,10 +265,10 @@ def ant_trap(
 
 
 def ant_maze(
-    episode_length: int = 1000,
-    backend: str = DEFAULT_BACKEND,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """QDax's AntMaze: final torso x-y in [-5, 40]^2; fitness = -sum over steps of the distance to the target.
 

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from qdrl.config import NonNegativeFloat, PositiveFloat, PositiveInt
 from qdrl.tasks.base import Task, batched_scoring_fn
 from qdrl.types import Array, PRNGKey
 
@@ -73,8 +74,8 @@ def _spiral_angle(arc_length: Array, amplitude: float, max_angle: float) -> Arra
 def archimedean_spiral(
     parameterization: Literal["angle", "arc_length"] = "angle",
     descriptor: Literal["euclidean", "geodesic"] = "euclidean",
-    amplitude: float = 0.01,
-    alpha: float = 40.0,
+    amplitude: PositiveFloat = 0.01,
+    alpha: PositiveFloat = 40.0,
 ) -> Task:
     """Archimedean spiral (QD-suite `archimedean-spiral-v0`, QDax `ArchimedeanSpiralV0`).
 
@@ -149,12 +150,17 @@ def _np_gaussian(x: np.ndarray, mu: np.ndarray, sigma: float) -> np.ndarray:
     return np.exp(-0.5 * sq / sigma**2) * (2.0 * np.pi * sigma**2) ** (-n / 2.0)
 
 
+# QD-suite's widths of the two bumps.
+SIGMA_1 = math.sqrt(70.0)
+SIGMA_2 = math.sqrt(1e3)
+
+
 def deceptive_evolvability(
     mu_1: Sequence[float] = (50.0, 125.0),
-    sigma_1: float = math.sqrt(70.0),
-    beta: float = 20.0,
+    sigma_1: PositiveFloat = SIGMA_1,
+    beta: NonNegativeFloat = 20.0,
     mu_2: Sequence[float] = (150.0, 125.0),
-    sigma_2: float = math.sqrt(1e3),
+    sigma_2: PositiveFloat = SIGMA_2,
 ) -> Task:
     """Deceptive evolvability (QD-suite `deceptive-evolvability-v0`, QDax `DeceptiveEvolvabilityV0`).
 
@@ -225,7 +231,7 @@ def ssf_radii(max_radius: float) -> np.ndarray:
             return np.asarray(pairs, np.float64)
 
 
-def ssf(num_dims: int = 1, radius: float = 1000.0) -> Task:
+def ssf(num_dims: PositiveInt = 1, radius: PositiveFloat = 1000.0) -> Task:
     """Self-similar function (QD-suite `SSF-v0`, QDax `SsfV0`).
 
     With r = |x| and the radii of `ssf_radii`, the descriptor is r on

@@ -21,11 +21,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Annotated
 
 import jax.numpy as jnp
 
+from qdrl.config import Range
 from qdrl.tasks.base import Task, batched_scoring_fn
 from qdrl.types import Array
+
+# What a `[task]` section may set (checked before the task is built): at least two
+# dimensions (the descriptors need them), and projection bounds [-m, m] with m >= 1.
+NumDims = Annotated[int, Range(low=2)]
+MinVal = Annotated[float, Range(high=-1.0)]
+MaxVal = Annotated[float, Range(low=1.0)]
 
 _RASTRIGIN_A = 10.0
 
@@ -67,7 +75,7 @@ def _unit_cube_task(
     )
 
 
-def sphere(num_dims: int = 100) -> Task:
+def sphere(num_dims: NumDims = 100) -> Task:
     """Sphere on [0, 1]^n (QDax `sphere_scoring_function`).
 
     g is clipped to [0, 1]^n, x = 10 g - 5; fitness = -sum_i x_i^2 (max 0 at
@@ -77,7 +85,7 @@ def sphere(num_dims: int = 100) -> Task:
     return _unit_cube_task("sphere", _sphere_f, num_dims, qd_offset=-25.0 * num_dims)
 
 
-def rastrigin(num_dims: int = 100) -> Task:
+def rastrigin(num_dims: NumDims = 100) -> Task:
     """Rastrigin on [0, 1]^n (QDax `rastrigin_scoring_function`).
 
     g is clipped to [0, 1]^n, x = 10 g - 5; fitness = -(10 n + sum_i (x_i^2 -
@@ -131,7 +139,7 @@ def _projection_task(
     )
 
 
-def sphere_proj(num_dims: int = 100, minval: float = -5.12, maxval: float = 5.12) -> Task:
+def sphere_proj(num_dims: NumDims = 100, minval: MinVal = -5.12, maxval: MaxVal = 5.12) -> Task:
     """Sphere with projection descriptors (CMA-ME's sphere; QDax CMA-ME tests).
 
     fitness = -sum_i (x_i - s)^2 with s = -0.4 minval (2.048 by default; max 0 at
@@ -153,7 +161,7 @@ def sphere_proj(num_dims: int = 100, minval: float = -5.12, maxval: float = 5.12
     )
 
 
-def rastrigin_proj(num_dims: int = 100, minval: float = -5.12, maxval: float = 5.12) -> Task:
+def rastrigin_proj(num_dims: NumDims = 100, minval: MinVal = -5.12, maxval: MaxVal = 5.12) -> Task:
     """Rastrigin with projection descriptors (QDax `rastrigin_proj_scoring_function`, CMA-ME).
 
     fitness = -(10 n + sum_i ((x_i - s)^2 - 10 cos(2 pi (x_i - s)))) with s =

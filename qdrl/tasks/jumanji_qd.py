@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from qdrl.config import NonNegativeInt, PositiveInt
 from qdrl.envs.jumanji import JumanjiEnv, snake_env
 from qdrl.tasks.base import Task
 from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, EpisodeDescriptor, policy_task
@@ -55,12 +56,12 @@ def jumanji_task(
 
 
 def snake(
-    episode_length: int = 100,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    num_rows: int = 12,
-    num_cols: int = 12,
-    start_seed: int | None = 0,
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 100,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    num_rows: PositiveInt = 12,
+    num_cols: PositiveInt = 12,
+    start_seed: NonNegativeInt | None = 0,
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Snake (jumanji Snake-v1): fitness = fruits eaten, descriptor = mean head position.
 

@@ -12,15 +12,16 @@ from __future__ import annotations
 
 import math
 
+from qdrl.config import PositiveInt
 from qdrl.envs.point_maze import PointMazeEnv
 from qdrl.tasks.base import Task
 from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, policy_task
 
 
 def point_maze(
-    episode_length: int = 100,
-    policy_hidden: tuple[int, ...] = (64, 64),
-    eval_batch: int = DEFAULT_EVAL_BATCH,
+    episode_length: PositiveInt = 100,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
 ) -> Task:
     """Point maze with MLP policies (QDax `pointmaze`): fitness = return, descriptor = final x-y.
 

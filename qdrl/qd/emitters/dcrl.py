@@ -36,7 +36,6 @@ lets `emit` return offspring only; QDax passes them through `extra_scores`).
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -50,6 +49,7 @@ from qdrl import buffers, nets
 from qdrl.agents.base import Agent
 from qdrl.agents.td3 import TD3Networks, TD3State, make_td3, td3_actor_step
 from qdrl.buffers import ReplayBuffer
+from qdrl.config import NonNegativeInt, PositiveFloat, PositiveInt
 from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.emitters.multi import MultiEmitter, concat_batches
@@ -66,28 +66,19 @@ class DCRLConfig(PGConfig):
     step size and `policy_learning_rate` the one of the actor steps applied to parents.
     """
 
-    num_critic_training_steps: int = 3000
-    num_pg_training_steps: int = 150
-    training_batch_size: int = 100
+    num_critic_training_steps: NonNegativeInt = 3000
+    num_pg_training_steps: NonNegativeInt = 150
+    training_batch_size: PositiveInt = 100
     # Length scale of the similarity exp(-||d - d'|| / lengthscale), in normalised
     # descriptor units (each dimension spans [-1, 1]).
-    lengthscale: float = 0.1
+    lengthscale: PositiveFloat = 0.1
     # Added to every reward before clipping it at 0 and scaling it by the similarity;
     # QDax wraps the environment in its task's reward offset (halfcheetah_uni 9.231).
     reward_offset: float = 0.0
 
     def check(self, section: str = "dcrl") -> None:
-        """Raises ValueError naming `section.<field>` and the expected value."""
+        """Raises ValueError naming the first `section.<field>` its declared type refuses."""
         super().check(section)
-        ls = self.lengthscale
-        if not (_is_real(ls) and ls > 0):
-            raise ValueError(f"{section}.lengthscale: expected a float > 0, got {ls!r}")
-        if not _is_real(self.reward_offset):
-            raise ValueError(f"{section}.reward_offset: expected a finite float, got {self.reward_offset!r}")
-
-
-def _is_real(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 class DCRLTransition(NamedTuple):

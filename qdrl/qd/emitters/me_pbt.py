@@ -29,6 +29,14 @@ import jax.numpy as jnp
 
 from qdrl import pbt
 from qdrl.agents.base import Agent, AgentState
+from qdrl.config import (
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveFloat,
+    PositiveInt,
+    UnitFloat,
+    check_fields,
+)
 from qdrl.off_policy import TrainConfig, Trainer, TrainState
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_variation
@@ -74,19 +82,19 @@ def crossover(x1: AgentState, x2: AgentState, key: PRNGKey, iso_sigma: float, li
 class MEPBTConfig:
     """The `[me_pbt]` section. Defaults: Pierrot & Flajolet 2023 / QDax's ME-PBT, scaled by 1/8."""
 
-    population_size: int = 10  # agents trained by RL (paper: 80)
-    ga_batch_size: int = 30  # crossover offspring per iteration (paper: 240, 3x the population)
-    iso_sigma: float = 0.005
-    line_sigma: float = 0.05
-    fraction_best: float = 0.1  # share of the population the worst copy from
-    fraction_from_best: float = 0.2  # share replaced by copies of the best
-    fraction_from_repertoire: float = 0.4  # next share replaced by repertoire agents
-    training_steps: int = 5000  # env steps each agent trains between two evaluations
-    env_batch_size: int = 25  # environments each agent steps in parallel while training
-    grad_updates_per_step: float = 1.0  # gradient steps per env step (per agent)
-    batch_size: int = 256  # transitions per gradient step
-    buffer_size: int = 100_000  # replay capacity of each agent
-    learning_starts: int = 1000  # env steps of random actions before an agent's first update
+    population_size: PositiveInt = 10  # agents trained by RL (paper: 80)
+    ga_batch_size: NonNegativeInt = 30  # crossover offspring per iteration (paper: 240, 3x the population)
+    iso_sigma: NonNegativeFloat = 0.005
+    line_sigma: NonNegativeFloat = 0.05
+    fraction_best: UnitFloat = 0.1  # share of the population the worst copy from
+    fraction_from_best: UnitFloat = 0.2  # share replaced by copies of the best
+    fraction_from_repertoire: UnitFloat = 0.4  # next share replaced by repertoire agents
+    training_steps: PositiveInt = 5000  # env steps each agent trains between two evaluations
+    env_batch_size: PositiveInt = 25  # environments each agent steps in parallel while training
+    grad_updates_per_step: PositiveFloat = 1.0  # gradient steps per env step (per agent)
+    batch_size: PositiveInt = 256  # transitions per gradient step
+    buffer_size: PositiveInt = 100_000  # replay capacity of each agent
+    learning_starts: NonNegativeInt = 1000  # env steps of random actions before an agent's first update
     hparams: tuple[str, ...] = ()  # tuned hyperparameters; empty: qdrl.pbt.DEFAULT_SPACES
     low: tuple[float, ...] = ()
     high: tuple[float, ...] = ()
@@ -97,17 +105,12 @@ class MEPBTConfig:
                 object.__setattr__(self, name, tuple(getattr(self, name)))
 
     def check(self) -> None:
-        for name in ("population_size", "ga_batch_size"):
-            value = getattr(self, name)
-            least = 1 if name == "population_size" else 0
-            if not isinstance(value, int) or isinstance(value, bool) or value < least:
-                raise ValueError(f"me_pbt.{name}: expected an integer >= {least}, got {value!r}")
-        for name in ("iso_sigma", "line_sigma"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"me_pbt.{name}: expected a number >= 0, got {getattr(self, name)}")
-        for name in ("fraction_best", "fraction_from_best", "fraction_from_repertoire"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"me_pbt.{name}: expected a number in [0, 1], got {getattr(self, name)}")
+        check_fields(self, "me_pbt")
+        if self.batch_size > self.buffer_size:
+            raise ValueError(
+                f"me_pbt.batch_size: expected at most me_pbt.buffer_size={self.buffer_size}, "
+                f"got {self.batch_size}"
+            )
         if self.training_steps % self.env_batch_size:
             raise ValueError(
                 f"me_pbt.training_steps: expected a multiple of me_pbt.env_batch_size="
@@ -118,6 +121,10 @@ class MEPBTConfig:
                 "me_pbt.fraction_from_best + me_pbt.fraction_from_repertoire: expected at most 1, "
                 f"got {self.fraction_from_best} + {self.fraction_from_repertoire}"
             )
+        try:
+            self.pbt_config().check()
+        except ValueError as e:  # its search space is ours: name our keys
+            raise ValueError(str(e).replace("pbt.", "me_pbt.")) from e
 
     def train_config(self) -> TrainConfig:
         """The off-policy loop's settings for one agent; one chunk = one training period."""

@@ -24,7 +24,6 @@ descriptor with respect to an archive (`qdrl.qd.emitters.novelty`).
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from typing import Any, NamedTuple, Protocol, TypeVar
 
@@ -35,8 +34,18 @@ import optax
 
 from qdrl import buffers, nets
 from qdrl.agents.base import Agent
+from qdrl.agents.common import Hidden
 from qdrl.agents.td3 import TD3Config, TD3Networks, TD3State, make_td3, td3_actor_step
 from qdrl.buffers import ReplayBuffer
+from qdrl.config import (
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveFloat,
+    PositiveInt,
+    PositiveUnitFloat,
+    UnitFloat,
+    check_fields,
+)
 from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.emitters.multi import MultiEmitter, concat_batches, split_batch
@@ -54,30 +63,30 @@ class PGConfig:
     """
 
     # TD3 critic steps (each also a greedy-actor step every `policy_delay`) per update.
-    num_critic_training_steps: int = 300
+    num_critic_training_steps: NonNegativeInt = 300
     # TD3 actor steps applied to each parent to make one offspring.
-    num_pg_training_steps: int = 100
+    num_pg_training_steps: NonNegativeInt = 100
     # Adam step size of the actor steps applied to offspring.
-    policy_learning_rate: float = 1e-3
+    policy_learning_rate: PositiveFloat = 1e-3
     # Adam step size of the twin critic.
-    critic_learning_rate: float = 3e-4
+    critic_learning_rate: PositiveFloat = 3e-4
     # Adam step size of the greedy actor (TD3's own actor).
-    greedy_learning_rate: float = 3e-4
+    greedy_learning_rate: PositiveFloat = 3e-4
     # Transitions per sampled batch (critic and offspring steps alike).
-    training_batch_size: int = 256
+    training_batch_size: PositiveInt = 256
     # Slots of the replay buffer.
-    replay_buffer_size: int = 1_000_000
-    discount: float = 0.99
+    replay_buffer_size: PositiveInt = 1_000_000
+    discount: UnitFloat = 0.99
     # Polyak rate of the target networks.
-    tau: float = 0.005
+    tau: PositiveUnitFloat = 0.005
     # Target policy smoothing noise and its clip (TD3).
-    policy_noise: float = 0.2
-    noise_clip: float = 0.5
+    policy_noise: NonNegativeFloat = 0.2
+    noise_clip: NonNegativeFloat = 0.5
     # Greedy actor and targets are updated once every `policy_delay` critic steps.
-    policy_delay: int = 2
-    reward_scale: float = 1.0
+    policy_delay: PositiveInt = 2
+    reward_scale: PositiveFloat = 1.0
     # Hidden widths of each of the twin critics (ReLU).
-    critic_hidden: tuple[int, ...] = (256, 256)
+    critic_hidden: Hidden = (256, 256)
 
     def __post_init__(self) -> None:
         if isinstance(self.critic_hidden, list):
@@ -99,28 +108,11 @@ class PGConfig:
         )
 
     def check(self, section: str = "pg") -> None:
-        """Raises ValueError naming `section.<field>` and the expected value."""
-        for name in ("num_critic_training_steps", "num_pg_training_steps"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 0):
-                raise ValueError(f"{section}.{name}: expected an integer >= 0, got {value!r}")
-        for name in ("training_batch_size", "replay_buffer_size"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"{section}.{name}: expected a positive integer, got {value!r}")
-        lr = self.policy_learning_rate
-        if not (isinstance(lr, int | float) and math.isfinite(lr) and lr > 0):
-            raise ValueError(f"{section}.policy_learning_rate: expected a float > 0, got {lr!r}")
-        try:
-            self.td3_config().check()
-        except ValueError as e:
-            # TD3Config names its own fields ("agent.actor_lr"); name ours instead.
-            names = {"actor_lr": "greedy_learning_rate", "critic_lr": "critic_learning_rate",
-                     "hidden": "critic_hidden"}
-            field = str(e).split(":")[0].removeprefix("agent.")
-            raise ValueError(
-                f"{section}.{names.get(field, field)}:{str(e).split(':', 1)[1]}"
-            ) from e
+        """Raises ValueError naming the first `section.<field>` its declared type refuses.
+
+        The TD3 fields declare the ranges of `TD3Config`'s, so `td3_config()` is valid.
+        """
+        check_fields(self, section)
 
 
 class RewardRelabel(Protocol):
