@@ -16,6 +16,7 @@ builder's keyword parameters (`[task]` keys) and a config built in Python
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import types
@@ -181,8 +182,10 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
     raise ConfigError(f"{where}: expected {describe(tp)}, got {_show(value)}")
 
 
-def _hints(cls: Any) -> dict[str, Any]:
-    return typing.get_type_hints(cls, include_extras=True)
+@functools.cache
+def _hints(owner: Any) -> dict[str, Any]:
+    """The resolved annotations of a dataclass or function (cached: resolving them is slow)."""
+    return typing.get_type_hints(owner, include_extras=True)
 
 
 def check_table(data: Any, section: str) -> Mapping[str, Any]:

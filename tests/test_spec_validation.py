@@ -1,0 +1,362 @@
+"""Every value of every spec in agents/ is checked before anything is built.
+
+For each spec and each key of its sections (those the file sets, and, once per
+algorithm, every key its sections accept), the key is given a wrong type (a
+string, a table, a list), NaN, +inf, -inf, a negative number and zero; lists are
+also given lists of those numbers. Whether a value is valid for a key is read
+from the key's declaration (its type, `Range`, `OneOf` registry, or the task
+builder's annotation) by `accepts` below, written apart from qdrl's own checks:
+an invalid value must fail the parse-and-check phase (`check_spec`, no task or
+environment built) with one line `<section>.<key>: expected ..., got ...`; a
+valid one must pass it or fail with a one-line `ConfigError` of a check across
+keys. A sample goes through the real CLI in fresh processes (exit status 2, one
+`qdrl: error:` line, no traceback, time).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+import resource
+import subprocess
+import sys
+import time
+import types
+import typing
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Annotated, Any
+
+import pytest
+
+from qdrl.config import ConfigError, OneOf, Range, describe, load_toml
+from qdrl.experiment import CheckedSpec, ExperimentConfig, LogConfig, build_run, check_spec
+
+SPECS = sorted((Path(__file__).resolve().parents[1] / "agents").glob("*.toml"))
+
+# Substitutes for any key; lists are also given lists of the numbers.
+WRONG: tuple[tuple[str, Any], ...] = (
+    ("a string", "not-a-name"),
+    ("a table", {"k": 1}),
+    ("a list", ["x"]),
+    ("nan", math.nan),
+    ("+inf", math.inf),
+    ("-inf", -math.inf),
+    ("negative", -1),
+    ("zero", 0),
+)
+# One spec per algorithm also gets every key its sections accept, not only those it sets.
+FIRST_OF_EACH_ALGORITHM = set({load_toml(p)["experiment"]["algorithm"]: p for p in reversed(SPECS)}.values())
+NUMBERS = (("nan", math.nan), ("+inf", math.inf), ("-inf", -math.inf), ("negative", -1), ("zero", 0))
+
+
+def _task_names() -> list[str]:
+    from qdrl.tasks import TASKS
+
+    return sorted(TASKS)
+
+
+TaskName = Annotated[str, OneOf(_task_names)]
+
+
+def _hints(owner: Any) -> dict[str, Any]:
+    return typing.get_type_hints(owner, include_extras=True)
+
+
+def accepts(tp: Any, value: Any) -> bool:
+    """Whether a key declared as `tp` accepts `value` on its own (checks across keys aside)."""
+    meta: tuple[Any, ...] = ()
+    if typing.get_origin(tp) is Annotated:
+        tp, *rest = typing.get_args(tp)
+        meta = tuple(rest)
+    rng = next((m for m in meta if isinstance(m, Range)), Range())
+    names = next((m for m in meta if isinstance(m, OneOf)), None)
+    origin = typing.get_origin(tp)
+    if origin in (types.UnionType, typing.Union):
+        return any(accepts(arg, value) for arg in typing.get_args(tp))
+    if origin is typing.Literal:
+        return isinstance(value, str) and value in typing.get_args(tp)
+    if origin in (tuple, list, typing.get_origin(typing.Sequence[int])):
+        return isinstance(value, list) and all(accepts(typing.get_args(tp)[0], v) for v in value)
+    if tp is type(None):
+        return value is None
+    if tp is bool:
+        return isinstance(value, bool)
+    if tp is str:
+        return isinstance(value, str) and (names is None or value in names.names())
+    if tp in (int, float) and isinstance(value, int | float) and not isinstance(value, bool):
+        if tp is int and not isinstance(value, int):
+            return False
+        x = float(value)
+        if math.isnan(x) or (math.isinf(x) and rng.finite):
+            return False
+        low_ok = rng.low is None or (x > rng.low if rng.low_open else x >= rng.low)
+        high_ok = rng.high is None or (x < rng.high if rng.high_open else x <= rng.high)
+        return low_ok and high_ok
+    if tp in (int, float):
+        return False
+    raise AssertionError(f"no rule for the declared type {tp!r}")
+
+
+def _table_class(section: str) -> type[Any]:
+    """The config class of a section that stays a table of given keys until the run is built."""
+    from qdrl.runners.qd import DCRLSection
+    from qdrl.runners.rl import ArchiveConfig
+
+    return {"archive": ArchiveConfig, "dcrl": DCRLSection}[section]
+
+
+def declared_keys(checked: CheckedSpec) -> Iterator[tuple[str, str, Any, Any]]:
+    """(section, key, declared type, resolved value) of every key the spec's sections accept."""
+    from qdrl.tasks import TASKS
+
+    sections: dict[str, Any] = {"experiment": checked.experiment, "log": checked.log, **checked.sections}
+    for section, obj in sections.items():
+        if section == "task":
+            yield section, "name", TaskName, obj["name"]
+            builder = TASKS[obj["name"]]
+            hints = _hints(builder)
+            for key in inspect.signature(builder).parameters:
+                yield section, key, hints[key], obj[key]
+            continue
+        cls = type(obj) if dataclasses.is_dataclass(obj) else _table_class(section)
+        hints = _hints(cls)
+        for f in dataclasses.fields(cls):
+            value = getattr(obj, f.name) if dataclasses.is_dataclass(obj) else obj.get(f.name, f.default)
+            yield section, f.name, hints[f.name], value
+
+
+def substitutes(original: Any) -> list[tuple[str, Any]]:
+    out = list(WRONG)
+    if isinstance(original, list | tuple):
+        n = max(1, len(original))
+        out += [(f"a list of {label}", [v] * n) for label, v in NUMBERS]
+    return out
+
+
+def with_value(spec: Mapping[str, Any], section: str, key: str, value: Any) -> dict[str, Any]:
+    return {**spec, section: {**spec.get(section, {}), key: value}}
+
+
+@dataclasses.dataclass
+class Tally:
+    invalid: int = 0
+    valid_passed: int = 0
+    valid_refused_across_keys: int = 0
+    slowest_s: float = 0.0
+    failures: list[str] = dataclasses.field(default_factory=list)
+
+
+def probe(spec: Mapping[str, Any], section: str, key: str, tp: Any, label: str, value: Any, tally: Tally) -> None:
+    """Checks `spec` with `section.key = value` and records whether qdrl did what `accepts` says."""
+    case = f"{section}.{key} = {label} ({value!r})"
+    t0 = time.perf_counter()
+    try:
+        check_spec(with_value(spec, section, key, value))
+        error = None
+    except ConfigError as e:
+        error = str(e)
+    except Exception as e:  # anything else is a failure of the check
+        tally.failures.append(f"{case}: {type(e).__name__}: {e}")
+        return
+    finally:
+        tally.slowest_s = max(tally.slowest_s, time.perf_counter() - t0)
+    if error is not None and "\n" in error:
+        tally.failures.append(f"{case}: a message of several lines: {error!r}")
+    elif accepts(tp, value):
+        if error is None:
+            tally.valid_passed += 1
+        else:
+            tally.valid_refused_across_keys += 1
+    elif error is None:
+        tally.failures.append(f"{case}: accepted, but {key} is declared as {describe(tp)}")
+    elif not (error.startswith(f"{section}.{key}: expected ") and ", got " in error):
+        tally.failures.append(f"{case}: the message does not name the key: {error!r}")
+    else:
+        tally.invalid += 1
+
+
+@pytest.fixture(scope="module")
+def tallies() -> dict[str, Tally]:
+    """Counts of every probe, by spec name; filled by `test_every_key_of_every_spec`."""
+    return {}
+
+
+@pytest.mark.parametrize("path", SPECS, ids=lambda p: p.stem)
+def test_every_key_of_every_spec(path: Path, tallies: dict[str, Tally]) -> None:
+    spec = load_toml(path)
+    checked = check_spec(spec)  # every spec in agents/ is valid
+    tally = tallies.setdefault(path.stem, Tally())
+    every_key = path in FIRST_OF_EACH_ALGORITHM
+    for section, key, tp, value in declared_keys(checked):
+        if key in spec.get(section, {}) or every_key:
+            for label, bad in substitutes(value):
+                probe(spec, section, key, tp, label, bad, tally)
+    assert not tally.failures, "\n".join(tally.failures[:20])
+    assert tally.invalid > 0
+    assert tally.slowest_s < 1.0, tally.slowest_s
+
+
+def test_the_walk_met_valid_and_invalid_values(tallies: dict[str, Tally]) -> None:
+    """The declarations decide: some substitutes are valid (a seed of 0, learning_starts = 0)."""
+    if len(tallies) < len(SPECS):
+        pytest.skip("needs the whole walk (test_every_key_of_every_spec) in this session")
+    total = Tally()
+    for t in tallies.values():
+        total.invalid += t.invalid
+        total.valid_passed += t.valid_passed
+        total.valid_refused_across_keys += t.valid_refused_across_keys
+    assert total.invalid > 10_000
+    assert total.valid_passed > 100  # e.g. seed 0, learning_starts 0, experiment.name "not-a-name"
+
+
+# Numbers whose every finite value means something; every other number declares a Range.
+ANY_FINITE_NUMBER = {
+    ("agent", "target_entropy"),  # SAC's target entropy: any value (default -action_size)
+    ("archive", "low"), ("archive", "high"),  # descriptor bounds: any box (low < high is checked)
+    ("archive", "qd_offset"), ("dcrl", "reward_offset"),  # offsets, either sign
+    ("pbt", "low"), ("pbt", "high"), ("me_pbt", "low"), ("me_pbt", "high"),  # search ranges (checked per name)
+    ("skills", "diversity_scale"), ("skills", "extrinsic_scale"),  # reward weights, either sign
+    ("smerl", "target"),  # a target return, either sign
+}
+
+
+def _numbers_without_range(tp: Any) -> bool:
+    """Whether `tp` is (a list of, or an optional) int or float without a declared Range."""
+    if typing.get_origin(tp) is Annotated:
+        return False
+    if typing.get_origin(tp) in (tuple, types.UnionType, typing.Union):
+        return any(_numbers_without_range(a) for a in typing.get_args(tp) if a is not Ellipsis)
+    return tp in (int, float)
+
+
+@pytest.mark.parametrize("path", sorted(FIRST_OF_EACH_ALGORITHM), ids=lambda p: p.stem)
+def test_every_number_declares_a_range_unless_any_finite_value_means_something(path: Path) -> None:
+    for section, key, tp, _ in declared_keys(check_spec(load_toml(path))):
+        if _numbers_without_range(tp):
+            assert (section, key) in ANY_FINITE_NUMBER, f"{section}.{key}: declare its Range"
+
+
+@pytest.mark.parametrize("path", SPECS, ids=lambda p: p.stem)
+def test_sections_of_the_wrong_type_unknown_keys_and_sections(path: Path) -> None:
+    spec = load_toml(path)
+    for section in spec:
+        for value in (5, "x", [1], 1.5, True):
+            with pytest.raises(ConfigError, match=rf"^{section}: expected a table \(\[{section}\] followed by"):
+                check_spec({**spec, section: value})
+        extra = "unknown key for task" if section == "task" else "unknown key;"
+        with pytest.raises(ConfigError, match=rf"^{section}\.not_a_key: {extra}"):
+            check_spec(with_value(spec, section, "not_a_key", 1))
+    with pytest.raises(ConfigError, match=r"^not_a_section: unknown section for algorithm"):
+        check_spec({**spec, "not_a_section": {}})
+
+
+def test_missing_algorithm_section_and_required_keys() -> None:
+    spec = load_toml(SPECS[0])
+    with pytest.raises(ConfigError, match=r"^experiment\.algorithm: missing; expected one of \['cvt_map_elites', "):
+        check_spec({**spec, "experiment": {"seed": 0}})
+    with pytest.raises(ConfigError, match=r"^experiment\.algorithm: expected one of \[.*\], got 'ppo'$"):
+        check_spec(with_value(spec, "experiment", "algorithm", "ppo"))
+    with pytest.raises(ConfigError, match=r"^experiment: missing section"):
+        check_spec({k: v for k, v in spec.items() if k != "experiment"})
+    with pytest.raises(ConfigError, match=r"^task\.name: missing; expected one of \["):
+        check_spec({**spec, "task": {"num_dofs": 3}})
+    with pytest.raises(ConfigError, match=r"^experiment: expected a table"):
+        check_spec({**spec, "experiment": 5})
+
+
+def test_seed_zero_is_valid_and_seeds_past_32_bits_are_not() -> None:
+    assert accepts(_hints(ExperimentConfig)["seed"], 0)
+    assert not accepts(_hints(ExperimentConfig)["seed"], 2**32)
+    spec = load_toml(SPECS[0])
+    check_spec(with_value(spec, "experiment", "seed", 0))
+    with pytest.raises(ConfigError, match=r"^experiment\.seed: expected an integer in \[0, 4294967295\], got 4294967296$"):
+        check_spec(with_value(spec, "experiment", "seed", 2**32))
+    assert LogConfig().checkpoint_every == 1
+
+
+def test_a_bad_pg_value_of_pga_me_is_reported_before_the_task_is_built(monkeypatch: pytest.MonkeyPatch) -> None:
+    """PGA-ME used to build its brax task (about 8 s) before reading [pg]; now [pg] comes first."""
+    import qdrl.runners.qd as qd_runner
+
+    spec = load_toml(Path(SPECS[0]).parent / "pga_me_halfcheetah_uni_cpu.toml")
+    check_spec(spec)  # imports done
+
+    def no_build(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("a task was built before [pg] was checked")
+
+    monkeypatch.setattr(qd_runner, "make_task_of", no_build)
+    for key, value, message in (
+        ("tau", 2.0, r"^pg\.tau: expected a number in \(0, 1\], got 2\.0$"),
+        ("critic_learning_rate", math.nan, r"^pg\.critic_learning_rate: expected a number > 0, got nan$"),
+        ("proportion_mutation_ga", 1.0, r"^pg\.proportion_mutation_ga: expected a number in \(0, 1\), got 1\.0$"),
+        ("replay_buffer_size", 10, r"^pg\.replay_buffer_size: expected at least emitter\.batch_size"),
+    ):
+        t0 = time.perf_counter()
+        with pytest.raises(ConfigError, match=message):
+            build_run(with_value(spec, "pg", key, value))
+        assert time.perf_counter() - t0 < 1.0
+
+
+def test_check_flag_prints_the_resolved_spec(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import tomllib
+
+    from qdrl.cli import main
+
+    spec = tmp_path / "arm.toml"
+    spec.write_text('[experiment]\nalgorithm = "map_elites"\n[task]\nname = "arm"\nnum_dofs = 4\n')
+    assert main(["run", str(spec), "--check", "--set", "qd.log_every=10", "--out", str(tmp_path / "o")]) == 0
+    resolved = tomllib.loads(capsys.readouterr().out)
+    assert resolved["experiment"] == {"algorithm": "map_elites", "seed": 0, "name": "arm"}
+    assert resolved["task"] == {"name": "arm", "num_dofs": 4}
+    assert resolved["qd"]["log_every"] == 10 and resolved["emitter"]["batch_size"] == 1024
+    assert not (tmp_path / "o").exists()  # nothing ran
+    assert main(["run", str(spec), "--check", "--set", "emitter.iso_sigma=inf"]) == 2
+    assert capsys.readouterr().err == "qdrl: error: emitter.iso_sigma: expected a number >= 0, got inf\n"
+
+
+# (spec file or inline TOML, --set overrides, the error line expected on stderr)
+CLI_SAMPLE: tuple[tuple[str, tuple[str, ...], str], ...] = (
+    ("map_elites_arm.toml", ("emitter.line_sigma=inf",), "emitter.line_sigma: expected a number >= 0, got inf"),
+    ("default.toml", ("archive.low=[-inf,-inf]",), "archive.low: expected a list of finite numbers, got [-inf, -inf]"),
+    ("pga_me_halfcheetah_uni_cpu.toml", ("pg.discount=nan",), "pg.discount: expected a number in [0, 1], got nan"),
+    ('qd = 5\n[experiment]\nalgorithm = "map_elites"\n', (), "qd: expected a table ([qd] followed by key = value lines), got 5"),
+    ("[experiment]\nseed = 1\n", (), "experiment.algorithm: missing; expected one of ['cvt_map_elites',"),
+)
+
+
+def _run_cli(
+    case: tuple[str, tuple[str, ...], str], tmp: Path
+) -> tuple[subprocess.CompletedProcess[str], float, float]:
+    """The finished process, its wall time and its CPU time (user + system)."""
+    source, overrides, _ = case
+    if source.endswith(".toml"):
+        spec = SPECS[0].parent / source
+    else:
+        spec = tmp / f"inline_{abs(hash(source))}.toml"
+        spec.write_text(source)
+    args = [a for o in overrides for a in ("--set", o)]
+    cmd = [sys.executable, "-m", "qdrl.cli", "run", str(spec), *args, "--out", str(tmp / "never")]
+    before, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    wall, after = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+    return res, wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+@pytest.mark.parametrize("case", CLI_SAMPLE, ids=lambda c: c[2].split(":")[0])
+def test_a_sample_through_the_cli_fails_in_one_line(case: tuple[str, tuple[str, ...], str], tmp_path: Path) -> None:
+    """The cases seen failing late or with a traceback before (2026-11-26), in fresh processes.
+
+    The process spends its time importing jax, haiku, rlax (about 2 s of CPU); its CPU
+    time is asserted, as wall time also counts whatever else shares the machine.
+    """
+    res, seconds, cpu_seconds = _run_cli(case, tmp_path)
+    expected = case[2]
+    errors = [line for line in res.stderr.splitlines() if line.startswith("qdrl: error:")]
+    assert res.returncode == 2, res.stderr
+    assert len(errors) == 1 and errors[0].startswith(f"qdrl: error: {expected}"), res.stderr
+    assert res.stderr.splitlines()[-1] == errors[0]
+    assert "Traceback" not in res.stderr and res.stdout == ""
+    assert cpu_seconds < 5.0 and seconds < 30.0, (cpu_seconds, seconds)
+    assert not (tmp_path / "never").exists()
