@@ -21,7 +21,7 @@ import math
 import tomllib
 import types
 import typing
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -182,9 +182,13 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
     raise ConfigError(f"{where}: expected {describe(tp)}, got {_show(value)}")
 
 
-@functools.cache
 def _hints(owner: Any) -> dict[str, Any]:
     """The resolved annotations of a dataclass or function (cached: resolving them is slow)."""
+    return _resolved_hints(owner)
+
+
+@functools.cache
+def _resolved_hints(owner: Hashable) -> dict[str, Any]:
     return typing.get_type_hints(owner, include_extras=True)
 
 
