@@ -42,6 +42,21 @@ def _report_crash(exc: BaseException, run_dir: Path | None, argv: list[str]) -> 
     return 1
 
 
+def _interrupted() -> int:
+    """Exit status 130 for Ctrl-C; at once if a worker thread still compiles or computes.
+
+    Python's shutdown would stop that thread inside XLA, which aborts the process
+    with a C++ error instead of exiting.
+    """
+    import threading
+
+    if any(t.name == "qdrl-worker" and t.is_alive() for t in threading.enumerate()):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    return 130
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from qdrl import checkpoint
     from qdrl.config import ConfigError
@@ -61,7 +76,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"qdrl: {e}", file=sys.stderr)
         if e.checkpoint is not None:
             print(f"qdrl: resume with: {resume}", file=sys.stderr)
-        return 130
+        return _interrupted()
     except KeyboardInterrupt:
         newest = checkpoint.latest(out_dir / "checkpoints")
         if newest is None:
@@ -69,7 +84,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         else:
             print(f"qdrl: aborted; {newest} is the newest checkpoint", file=sys.stderr)
             print(f"qdrl: resume with: {resume}", file=sys.stderr)
-        return 130
+        return _interrupted()
     except Exception as e:  # anything else: one line here, the traceback in a file
         return _report_crash(e, out_dir, args.argv)
     print(json.dumps(summary, indent=2))

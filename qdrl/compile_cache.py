@@ -8,8 +8,10 @@ spec or `QDRL_COMPILE_CACHE=0` turn the cache off.
 
 `estimate` and `record` keep the measured startup time (initial state and
 compilation) of each spec per machine in `cache_dir() / "compile_times.json"`,
-so that a run can say how long its compilation took last time. Nothing here
-ever fails a run: an unwritable cache directory only loses the record.
+so that a run can say how long its compilation took last time, or, for a new
+spec, how long a cold compilation (no executable from the persistent cache, as
+`cache_hits` counts) of the same algorithm and task took. Nothing here ever
+fails a run: an unwritable cache directory only loses the record.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from typing import Any
 
 import jax
 
-__all__ = ["cache_dir", "enabled", "estimate", "record", "spec_key"]
+__all__ = ["cache_dir", "cache_hits", "enabled", "estimate", "record", "spec_key"]
 
 _TIMES_FILE = "compile_times.json"
 # Keys that do not change what is compiled (length, logging, seed, label).
@@ -83,6 +85,26 @@ def enabled(on: bool = True) -> Iterator[str | None]:
             cc.reset_cache()
 
 
+@contextlib.contextmanager
+def cache_hits() -> Iterator[dict[str, int]]:
+    """Counts, within the block, compilations looked up in the persistent cache and found there."""
+    import jax.monitoring
+
+    counts = {"lookups": 0, "hits": 0}
+
+    def listen(event: str, **kwargs: str | int) -> None:
+        if event == "/jax/compilation_cache/compile_requests_use_cache":
+            counts["lookups"] += 1
+        elif event == "/jax/compilation_cache/cache_hits":
+            counts["hits"] += 1
+
+    jax.monitoring.register_event_listener(listen)
+    try:
+        yield counts
+    finally:
+        jax.monitoring.unregister_event_listener(listen)
+
+
 def spec_key(config_toml: str) -> str:
     """A digest of a resolved spec, leaving out the keys that do not change what is compiled."""
     spec = tomllib.loads(config_toml)
@@ -109,22 +131,27 @@ def _load() -> dict[str, Any]:
 
 
 def estimate(key: str, algorithm: str, task: str) -> tuple[float, bool] | None:
-    """`(seconds, same_spec)`: the last startup time of this spec on this machine, else of the
-    newest run of the same algorithm and task (`same_spec` False); None without either."""
+    """`(seconds, same_spec)`: the last startup time of this spec on this machine, else that of
+    the newest cold start of the same algorithm and task (`same_spec` False); else None."""
     runs: Mapping[str, Any] = _load().get(_machine(), {})
     if key in runs:
         return float(runs[key]["seconds"]), True
-    similar = [r for r in runs.values() if r.get("algorithm") == algorithm and r.get("task") == task]
+    similar = [
+        r for r in runs.values()
+        if r.get("algorithm") == algorithm and r.get("task") == task and r.get("cold")
+    ]
     if similar:
         return float(max(similar, key=lambda r: r.get("when", 0))["seconds"]), False
     return None
 
 
-def record(key: str, algorithm: str, task: str, seconds: float) -> None:
-    """Stores this spec's startup time on this machine (best effort)."""
+def record(key: str, algorithm: str, task: str, seconds: float, cold: bool) -> None:
+    """Stores this spec's startup time on this machine (best effort); `cold`: compiled from scratch."""
     data = _load()
     machine = data.setdefault(_machine(), {})
-    machine[key] = {"algorithm": algorithm, "task": task, "seconds": round(seconds, 2), "when": time.time()}
+    machine[key] = {
+        "algorithm": algorithm, "task": task, "seconds": round(seconds, 2), "cold": cold, "when": time.time(),
+    }
     path = cache_dir() / _TIMES_FILE
     tmp = path.with_name(f".{_TIMES_FILE}.{uuid.uuid4().hex}")
     try:

@@ -386,7 +386,8 @@ def run(
         progress.compiling(compile_cache.estimate(key, exp.algorithm, run_.task))
         t0 = time.perf_counter()
         try:
-            state, meta, restored, skipped, compile_s = worker.call(prepare, tick=progress.tick)
+            with compile_cache.cache_hits() as cache:
+                state, meta, restored, skipped, compile_s = worker.call(prepare, tick=progress.tick)
         except KeyboardInterrupt:
             progress.close()
             newest = checkpoint.latest(ckpt_dir)
@@ -397,7 +398,7 @@ def run(
             raise ConfigError(f"--resume: {e}") from None
         startup_s = time.perf_counter() - t0
         progress.compiled(startup_s)
-        compile_cache.record(key, exp.algorithm, run_.task, startup_s)
+        compile_cache.record(key, exp.algorithm, run_.task, startup_s, cold=cache["hits"] == 0)
 
         start_chunk, wall_offset, run_s, rows = 0, 0.0, 0.0, []
         metrics_path = out_dir / "metrics.csv"
