@@ -381,6 +381,8 @@ def run(
             skipped: list[tuple[Path, str]] = []
             if resume:
                 state, meta, path, skipped = checkpoint.restore_newest(ckpt_dir, state)
+                if int(meta["chunk"]) + 1 >= run_.num_chunks:  # finished: nothing to compile
+                    return state, meta, path, skipped, 0.0
             return state, meta, path, skipped, run_.compile(state)
 
         progress.compiling(compile_cache.estimate(key, exp.algorithm, run_.task))
@@ -390,9 +392,7 @@ def run(
                 state, meta, restored, skipped, compile_s = worker.call(prepare, tick=progress.tick)
         except KeyboardInterrupt:
             progress.close()
-            newest = checkpoint.latest(ckpt_dir)
-            done = int(checkpoint.read_metadata(newest)["chunk"]) + 1 if newest else 0
-            raise RunInterrupted(out_dir, newest, done, run_.num_chunks) from None
+            raise RunInterrupted(out_dir, *_newest_log_point(ckpt_dir), run_.num_chunks) from None
         except checkpoint.CheckpointError as e:
             progress.close()
             raise ConfigError(f"--resume: {e}") from None
@@ -483,6 +483,17 @@ def run(
     summary = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default) + "\n")
     return summary
+
+
+def _newest_log_point(ckpt_dir: Path) -> tuple[Path | None, int]:
+    """The newest checkpoint that verifies and the log points it holds; (None, 0) without one."""
+    for path in checkpoint.checkpoints(ckpt_dir):
+        try:
+            checkpoint.verify(path)
+            return path, int(checkpoint.read_metadata(path)["chunk"]) + 1
+        except (checkpoint.CheckpointError, KeyError, TypeError, ValueError):
+            continue
+    return None, 0
 
 
 def _check_resume_checkpoints(found: list[Path], run_: Run) -> None:

@@ -113,6 +113,19 @@ def test_resume_after_sigkill_matches_an_uninterrupted_run(tmp_path: Path) -> No
     assert steps == [str(200 * (i + 1)) for i in range(20)]  # integer columns as integers
 
 
+@pytest.mark.slow
+def test_extending_an_rl_run_equals_a_longer_run_from_scratch(tmp_path: Path) -> None:
+    # `--resume --set train.total_env_steps=N` extends a finished SAC run.
+    spec = write_spec(tmp_path, steps=1000)  # 5 log points
+    full = run_spec(spec, [], tmp_path / "full")
+    out = tmp_path / "extended"
+    assert run_spec(spec, ["train.total_env_steps=600"], out)["env_steps"] == 600
+    extended = run_spec(spec, ["train.total_env_steps=1000"], out, resume=True)
+    for key in ("env_steps", "eval_return", "eval_return_std", "critic_loss", "grad_steps", "train_return", "qd_score"):
+        assert extended[key] == full[key], key
+    assert len((out / "metrics.csv").read_text().splitlines()) == 1 + 5
+
+
 @pytest.mark.parametrize(
     ("override", "message"),
     [
