@@ -5,7 +5,7 @@ processes, after jax), save and restore time, and whether the restored state is
 bit-identical (typed PRNG keys, NamedTuples, chex dataclasses, restoring into a
 template). States: the initial state of `agents/sac_halfcheetah.toml` (its
 1M-transition replay buffer) and of `agents/map_elites_arm.toml` (32x32 grid of
-100-joint arms). Prints one JSON line per measurement and a summary.
+100-joint arms), float leaves filled with noise. Prints one JSON line per measurement and a summary.
 
     python benchmarks/checkpoint_vs_orbax.py [--reps 3]
 """
@@ -39,8 +39,18 @@ def import_seconds(module: str) -> float:
 
 
 def state_of(spec_name: str) -> Any:
+    """The spec's initial state with every float leaf filled with noise, as after training
+    (an empty replay buffer is zeros, which orbax's compression would make look cheap)."""
     run, exp, _ = build_run(load_toml(ROOT / "agents" / spec_name))
-    return jax.block_until_ready(run.init(jax.random.PRNGKey(exp.seed)))
+    state = run.init(jax.random.PRNGKey(exp.seed))
+    rng = np.random.default_rng(0)
+
+    def fill(x: Any) -> Any:
+        if jax.numpy.issubdtype(x.dtype, jax.numpy.floating):
+            return jax.numpy.asarray(rng.standard_normal(x.shape).astype(x.dtype))
+        return x
+
+    return jax.block_until_ready(jax.tree.map(fill, state))
 
 
 def nbytes(state: Any) -> int:
