@@ -29,6 +29,7 @@ import numpy as np
 
 from qdrl import checkpoint, compile_cache, interrupt
 from qdrl.config import ConfigError, apply_overrides, build, dump_toml, load_toml
+from qdrl.progress import RunProgress
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,8 +79,8 @@ class Run(Protocol):
     num_chunks: int  # log points in the whole run
     sections: dict[str, Any]  # resolved config dataclasses, by section name
     progress_keys: tuple[str, ...]  # row keys shown on the progress bar
-    # What the progress bar counts: a row key ("iteration", "env_steps") and its
-    # value at the end of the run. Runs without them count log points.
+    # What the progress bar counts: a row key ("iteration", "env_steps"), or
+    # "log_point" for log points, and its value at the end of the run.
     progress_unit: str
     progress_total: int
 
@@ -248,63 +249,6 @@ class RunInterrupted(KeyboardInterrupt):
         super().__init__(text)
 
 
-class _Progress:
-    """The terminal line of a run: a compile timer, then a bar over iterations or env steps."""
-
-    def __init__(self, enabled: bool, label: str, unit: str, total: int) -> None:
-        self.enabled, self.label, self.unit, self.total = enabled, label, unit, total
-        self._bar: Any = None
-        self._t0 = time.perf_counter()
-        self._note = ""
-
-    def compiling(self, estimate: tuple[float, bool] | None) -> None:
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        if estimate is None:
-            self._note = " (first run of this spec here: no estimate yet)"
-        elif estimate[1]:
-            self._note = f" (last run of this spec: {estimate[0]:.0f} s)"
-        else:
-            self._note = f" (first run of this spec: about {estimate[0]:.0f} s)"
-        self._t0 = time.perf_counter()
-        self._bar = tqdm(total=None, bar_format="{desc}", dynamic_ncols=True)
-        self.tick()
-
-    def tick(self) -> None:
-        if self._bar is not None:
-            elapsed = time.perf_counter() - self._t0
-            self._bar.set_description_str(f"compiling {self.label} ... {elapsed:.0f} s{self._note}")
-
-    def compiled(self, seconds: float) -> None:
-        if self._bar is not None:
-            self._bar.set_description_str(f"compiled {self.label} in {seconds:.1f} s", refresh=False)
-            self._bar.close()
-            self._bar = None
-
-    def start(self, done: int) -> None:
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        steps = self.unit == "env_steps"
-        self._bar = tqdm(
-            total=self.total, initial=done, unit="step" if steps else "it", unit_scale=steps,
-            dynamic_ncols=True, desc=self.label,
-        )
-
-    def update(self, done: int, shown: dict[str, str]) -> None:
-        if self._bar is not None:
-            self._bar.set_postfix(shown, refresh=False)
-            self._bar.update(done - self._bar.n)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
-
 def default_out_dir(spec_path: str | Path) -> Path:
     """Where `qdrl run SPEC` writes without --out: runs/<spec file stem>."""
     return Path("runs") / Path(spec_path).stem
@@ -327,8 +271,7 @@ def run_spec(
 
 
 def _progress_value(run_: Run, row: Mapping[str, float], chunk: int) -> int:
-    unit = getattr(run_, "progress_unit", "log_point")
-    return chunk + 1 if unit == "log_point" else int(row[unit])
+    return chunk + 1 if run_.progress_unit == "log_point" else int(row[run_.progress_unit])
 
 
 def run(
@@ -363,9 +306,7 @@ def run(
         (out_dir / "config.toml").write_text(config_text)
 
     label = f"{exp.algorithm} on {run_.task}"
-    unit = getattr(run_, "progress_unit", "log_point")
-    total = getattr(run_, "progress_total", run_.num_chunks)
-    progress = _Progress(log.progress, label, unit, total)
+    progress = RunProgress(log.progress, label, run_.progress_unit, run_.progress_total)
     key = compile_cache.spec_key(config_text)
     stop_message = (
         "qdrl: stopping after the chunk in flight and saving a checkpoint "
