@@ -330,6 +330,16 @@ def test_an_unexpected_error_prints_one_line_and_logs_the_traceback(
     assert "broken_build" in path.read_text()
     path.unlink()
 
+    # Any other command: the same.
+    def broken_bench(*args: Any, **kwargs: Any) -> Any:
+        raise OSError("disk full")
+
+    monkeypatch.setattr("qdrl.bench.run_bench", broken_bench)
+    assert main(["bench", "rl", "--quick"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("qdrl: error: OSError: disk full (full traceback in ") and err.count("\n") == 1
+    Path(err.split("full traceback in ")[1].rstrip(")\n")).unlink()
+
 
 def test_progress_line_counts_iterations_and_shows_the_last_compile_time(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
