@@ -1,7 +1,8 @@
 """qdrl.checkpoint against orbax-checkpoint's CheckpointManager on real run states.
 
 Measures, alternating the two libraries run by run: import time (fresh
-processes, after jax), save and restore time, and whether the restored state is
+processes, after jax), what a restore does with 64 flipped bytes in a
+checkpoint, save and restore time, and whether the restored state is
 bit-identical (typed PRNG keys, NamedTuples, chex dataclasses, restoring into a
 template). States: the initial state of `agents/sac_halfcheetah.toml` (its
 1M-transition replay buffer) and of `agents/map_elites_arm.toml` (32x32 grid of
@@ -101,6 +102,30 @@ def orbax_roundtrip(state: Any, directory: Path, step: int) -> tuple[float, floa
         return save_s, time.perf_counter() - t0, bit_identical(state, restored)
 
 
+def corrupted_restore(lib: str, directory: Path) -> str:
+    """Flips 64 bytes in the middle of the largest file of a saved checkpoint and restores it."""
+    state = {"x": jax.numpy.arange(1_000_000, dtype=jax.numpy.float32), "key": jax.random.key(0)}
+    (orbax_roundtrip if lib == "orbax" else qdrl_roundtrip)(state, directory, 0)
+    _, biggest = max((p.stat().st_size, p) for p in directory.rglob("*") if p.is_file())
+    data = bytearray(biggest.read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + 64] = bytes(b ^ 0xFF for b in data[mid : mid + 64])
+    biggest.write_bytes(bytes(data))
+    try:
+        if lib == "orbax":
+            import orbax.checkpoint as ocp
+
+            with ocp.CheckpointManager(directory) as manager:
+                template = jax.tree.map(ocp.utils.to_shape_dtype_struct, state)
+                out = manager.restore(0, args=ocp.args.StandardRestore(template))
+        else:
+            out, _ = checkpoint.restore(checkpoint.latest(directory), state)  # type: ignore[arg-type]
+    except Exception as e:
+        return f"error: {type(e).__name__}: {str(e).splitlines()[0][:120]}"
+    wrong = int((np.asarray(out["x"]) != np.asarray(state["x"])).sum())
+    return f"restored without an error, {wrong} values wrong"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--reps", type=int, default=3)
@@ -114,6 +139,12 @@ def main() -> None:
     for _ in range(args.reps):
         note("import_s/orbax.checkpoint", import_seconds("orbax.checkpoint"))
         note("import_s/qdrl.checkpoint", import_seconds("qdrl.checkpoint"))
+    root = Path(tempfile.mkdtemp(prefix="ckpt-corrupt-"))
+    try:
+        for lib in ("qdrl", "orbax"):
+            print(json.dumps({"corrupted_restore": lib, "outcome": corrupted_restore(lib, root / lib)}), flush=True)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
     for spec in ("map_elites_arm.toml", "sac_halfcheetah.toml"):
         state = state_of(spec)
         print(json.dumps({"state": spec, "bytes": nbytes(state), "leaves": len(jax.tree.leaves(state))}))
