@@ -26,6 +26,7 @@ Only one process should save into a given directory at a time.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -276,6 +277,15 @@ def _read_json(path: Path) -> Any:
 def verify(path: str | os.PathLike[str]) -> None:
     """Raises CheckpointError (naming the file and what is wrong) unless the files match the manifest."""
     path = Path(path)
+    if not (path / MANIFEST_FILE).exists():
+        version = None
+        with contextlib.suppress(CheckpointError, AttributeError):
+            version = _read_json(path / META_FILE).get("format_version")
+        if version is not None and version != FORMAT_VERSION:
+            raise CheckpointError(
+                f"written in checkpoint format {version} by an older qdrl (no {MANIFEST_FILE}); "
+                "resume it with that version"
+            )
     manifest = _read_json(path / MANIFEST_FILE)
     files = manifest.get("files") if isinstance(manifest, dict) else None
     if not isinstance(files, dict) or set(files) != {STATE_FILE, META_FILE}:

@@ -304,3 +304,12 @@ def test_a_save_killed_between_any_two_steps_leaves_a_complete_checkpoint(tmp_pa
         checkpoint.save(tmp_path / phase, 4, {"x": np.zeros(1000, np.float32)}, {}, keep=2)
         names = sorted(p.name for p in (tmp_path / phase).iterdir())
         assert names[-1] == "step_0000000004" and len(names) == 2, (phase, names)
+
+
+def test_a_checkpoint_of_the_first_format_is_named_as_such(tmp_path: Path) -> None:
+    path = checkpoint.save(tmp_path, 1, {"x": jnp.zeros(2)}, {})
+    (path / "manifest.json").unlink()
+    meta = json.loads((path / "meta.json").read_text())
+    (path / "meta.json").write_text(json.dumps({**meta, "format_version": 1}))
+    with pytest.raises(checkpoint.CheckpointError, match="format 1 by an older qdrl"):
+        checkpoint.restore(path, {"x": jnp.zeros(2)})
