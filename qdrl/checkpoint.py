@@ -1,30 +1,39 @@
-"""Atomic save and bit-exact restore of any pytree (training state, repertoire, keys).
+"""Atomic save and verified, bit-exact restore of any pytree (training state, repertoire, keys).
 
 Layout of a checkpoint directory::
 
     directory/
-      step_0000001000/
-        state.npz    leaves of the flattened pytree, named leaf_00000, leaf_00001, ...
-        meta.json    user metadata, step, leaf count, each leaf's shape and dtype,
-                     the treedef as a string
-      step_0000002000/
-      .tmp-...       a save in progress (or killed mid-write); never read
+      step_0000000001/
+        state.npz      leaves of the flattened pytree, named leaf_00000, leaf_00001, ...
+        meta.json      user metadata, step, leaf count, each leaf's shape and dtype,
+                       the treedef as a string
+        manifest.json  size and CRC-32 of the two files above; written last
+      step_0000000002/
+      .tmp-...         a save in progress (or killed mid-write); never read
 
-A checkpoint is written into a temporary directory beside its final place and
-renamed into place only once every file is fsynced, so a process killed at any
-moment (SIGKILL included) leaves either the previous checkpoints or a complete
-new one. `latest` only looks at `step_*` directories, which exist only complete.
+`step` is any counter that grows with each save (the experiment driver uses the
+number of log points done). A save writes its files into a temporary directory,
+fsyncs them, writes the manifest, fsyncs it, renames the directory into place,
+fsyncs the parent, and only then prunes checkpoints beyond `keep`. So at every
+instant (SIGKILL included) the checkpoints that were complete before the save
+stay complete until a newer one is durable. `restore` checks a checkpoint
+against its manifest before loading it; `restore_newest` falls back past
+checkpoints that fail (truncated, overwritten or deleted files) to the newest
+one that loads.
 
 Only one process should save into a given directory at a time.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 import shutil
 import uuid
+import zipfile
+import zlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -35,14 +44,35 @@ import numpy as np
 
 from qdrl.types import PyTree
 
-__all__ = ["latest", "restore", "save", "step_of"]
+__all__ = [
+    "CheckpointError",
+    "checkpoints",
+    "latest",
+    "read_metadata",
+    "remove",
+    "restore",
+    "restore_newest",
+    "save",
+    "step_of",
+    "verify",
+]
 
 STATE_FILE = "state.npz"
 META_FILE = "meta.json"
-FORMAT_VERSION = 1
+MANIFEST_FILE = "manifest.json"
+FORMAT_VERSION = 2
 _STEP_DIR = re.compile(r"^step_(\d{10,})$")
 _TMP_PREFIX = ".tmp-"
 _TRASH_PREFIX = ".trash-"
+_CHUNK = 1 << 23
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used: a file missing, truncated or corrupt."""
+
+
+def _crash_point(phase: str) -> None:
+    """Called between the steps of `save` (a seam for tests that kill a save there)."""
 
 
 def _leaf_name(i: int) -> str:
@@ -68,6 +98,14 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+def _crc32(path: Path) -> int:
+    crc = 0
+    with open(path, "rb") as f:
+        while block := f.read(_CHUNK):
+            crc = zlib.crc32(block, crc)
+    return crc
+
+
 def _json_default(obj: Any) -> Any:
     # numpy / jax scalars and paths are common in experiment metadata.
     if isinstance(obj, np.generic):
@@ -79,16 +117,36 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"metadata value {obj!r} of type {type(obj).__name__} is not JSON serialisable")
 
 
-def _checkpoints(directory: Path) -> list[tuple[int, Path]]:
-    """Complete checkpoints in `directory`, sorted by step."""
+def checkpoints(directory: str | os.PathLike[str]) -> list[Path]:
+    """Every `step_*` directory in `directory`, complete or not, newest (highest step) first."""
+    directory = Path(directory)
     if not directory.is_dir():
         return []
     found = []
     for child in directory.iterdir():
         m = _STEP_DIR.match(child.name)
-        if m and (child / META_FILE).is_file() and (child / STATE_FILE).is_file():
+        if m and child.is_dir():
             found.append((int(m.group(1)), child))
-    return sorted(found)
+    return [path for _, path in sorted(found, reverse=True)]
+
+
+def _complete(path: Path) -> bool:
+    return all((path / name).is_file() for name in (STATE_FILE, META_FILE, MANIFEST_FILE))
+
+
+def remove(path: str | os.PathLike[str]) -> None:
+    """Deletes a checkpoint: renamed out of the `step_*` namespace first, so never seen half-deleted."""
+    path = Path(path)
+    trash = path.parent / f"{_TRASH_PREFIX}{path.name}-{uuid.uuid4().hex}"
+    os.replace(path, trash)
+    shutil.rmtree(trash, ignore_errors=True)
+
+
+def _write_synced(path: Path, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def save(
@@ -98,18 +156,18 @@ def save(
     metadata: Mapping[str, Any] | None = None,
     keep: int = 2,
 ) -> Path:
-    """Atomically writes `state` as checkpoint `step` and prunes old checkpoints.
+    """Atomically writes `state` as checkpoint `step`, then prunes old checkpoints.
 
     Args:
       directory: parent directory of all checkpoints of a run (created if needed).
-      step: non-negative step number; names the checkpoint `step_{step:010d}`.
-        Saving a step that already exists replaces it.
+      step: non-negative counter that grows with each save; names the checkpoint
+        `step_{step:010d}`. Saving a step that already exists replaces it.
       state: any pytree of arrays (jax, numpy, Python scalars). Typed PRNG key
         arrays are stored as their `jax.random.key_data` and rewrapped on restore.
       metadata: JSON-serialisable mapping (numpy scalars and paths are converted).
       keep: number of checkpoints (highest steps) to keep, >= 1. Older ones are
-        deleted only after the new checkpoint is in place; the one just written
-        is never deleted.
+        deleted only once the new checkpoint is durable in place; the one just
+        written is never deleted.
 
     Returns:
       The path of the new checkpoint directory.
@@ -152,7 +210,7 @@ def save(
         "metadata": dict(metadata or {}),
     }
     # Serialise before touching the disk so a bad metadata value fails cleanly.
-    meta_text = json.dumps(meta, indent=1, default=_json_default, allow_nan=True)
+    meta_bytes = json.dumps(meta, indent=1, default=_json_default, allow_nan=True).encode()
 
     tmp = directory / f"{_TMP_PREFIX}{final.name}-{uuid.uuid4().hex}"
     tmp.mkdir()
@@ -161,28 +219,37 @@ def save(
             np.savez(f, **arrays)
             f.flush()
             os.fsync(f.fileno())
-        with open(tmp / META_FILE, "w", encoding="utf-8") as f:
-            f.write(meta_text)
-            f.flush()
-            os.fsync(f.fileno())
+        _write_synced(tmp / META_FILE, meta_bytes)
+        _crash_point("files_written")
+        manifest = {
+            "format_version": FORMAT_VERSION,
+            "files": {
+                STATE_FILE: {"size": (tmp / STATE_FILE).stat().st_size, "crc32": _crc32(tmp / STATE_FILE)},
+                META_FILE: {"size": len(meta_bytes), "crc32": zlib.crc32(meta_bytes)},
+            },
+        }
+        _write_synced(tmp / MANIFEST_FILE, json.dumps(manifest, indent=1).encode())
         _fsync_dir(tmp)
+        _crash_point("manifest_written")
         if final.exists():
-            # rename() cannot replace a non-empty directory: move the old one
-            # aside first. A crash in between only loses this step to an older one.
+            # rename() cannot replace a non-empty directory: move the old one aside
+            # first. Older checkpoints stay complete meanwhile.
             trash = directory / f"{_TRASH_PREFIX}{final.name}-{uuid.uuid4().hex}"
             os.replace(final, trash)
-            os.replace(tmp, final)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, final)
+            _crash_point("moved_aside")
+        os.replace(tmp, final)
         _fsync_dir(directory)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    _crash_point("renamed")
 
-    for old_step, old_path in _checkpoints(directory)[:-keep]:
-        if old_step != step:
-            shutil.rmtree(old_path, ignore_errors=True)
+    # Keep the `keep` newest complete checkpoints; a step directory with a file
+    # missing is no checkpoint and does not count.
+    for old in [p for p in checkpoints(directory) if _complete(p)][keep:]:
+        if old != final:
+            remove(old)
+    _crash_point("pruned")
     # Leftovers of saves killed mid-write are never read; reclaim their space.
     for child in directory.iterdir():
         if child.name.startswith((_TMP_PREFIX, _TRASH_PREFIX)) and child.is_dir():
@@ -191,15 +258,57 @@ def save(
 
 
 def latest(directory: str | os.PathLike[str]) -> Path | None:
-    """Returns the complete checkpoint with the highest step, or None if there is none."""
-    found = _checkpoints(Path(directory))
-    return found[-1][1] if found else None
+    """The checkpoint with the highest step whose three files exist (not verified), or None."""
+    for path in checkpoints(directory):
+        if _complete(path):
+            return path
+    return None
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_bytes())
+    except FileNotFoundError:
+        raise CheckpointError(f"{path.name} is missing") from None
+    except (OSError, ValueError) as e:
+        raise CheckpointError(f"{path.name} is unreadable ({type(e).__name__}: {e})") from e
+
+
+def verify(path: str | os.PathLike[str]) -> None:
+    """Raises CheckpointError (naming the file and what is wrong) unless the files match the manifest."""
+    path = Path(path)
+    if not (path / MANIFEST_FILE).exists():
+        version = None
+        with contextlib.suppress(CheckpointError, AttributeError):
+            version = _read_json(path / META_FILE).get("format_version")
+        if version is not None and version != FORMAT_VERSION:
+            raise CheckpointError(
+                f"written in checkpoint format {version} by an older qdrl (no {MANIFEST_FILE}); "
+                "resume it with that version"
+            )
+    manifest = _read_json(path / MANIFEST_FILE)
+    files = manifest.get("files") if isinstance(manifest, dict) else None
+    if not isinstance(files, dict) or set(files) != {STATE_FILE, META_FILE}:
+        raise CheckpointError(f"{MANIFEST_FILE} is not a qdrl manifest")
+    for name, expected in files.items():
+        file = path / name
+        if not file.is_file():
+            raise CheckpointError(f"{name} is missing")
+        size = file.stat().st_size
+        if size != expected["size"]:
+            raise CheckpointError(f"{name} has {size} bytes, the manifest says {expected['size']}")
+        if _crc32(file) != expected["crc32"]:
+            raise CheckpointError(f"{name} does not match its CRC-32 in the manifest")
+
+
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The metadata dict given to `save` (read from meta.json, not verified)."""
+    return dict(_read_json(Path(path) / META_FILE)["metadata"])
 
 
 def step_of(path: str | os.PathLike[str]) -> int:
     """Returns the step a checkpoint was saved at (read from its meta.json)."""
-    with open(Path(path) / META_FILE, encoding="utf-8") as f:
-        return int(json.load(f)["step"])
+    return int(_read_json(Path(path) / META_FILE)["step"])
 
 
 def _template_shape_dtype(leaf: Any) -> tuple[tuple[int, ...], str]:
@@ -212,7 +321,7 @@ def _template_shape_dtype(leaf: Any) -> tuple[tuple[int, ...], str]:
 def restore(
     path: str | os.PathLike[str], template: PyTree, check_treedef: bool = True
 ) -> tuple[PyTree, dict[str, Any]]:
-    """Loads a checkpoint into the structure of `template`.
+    """Verifies a checkpoint against its manifest and loads it into the structure of `template`.
 
     Args:
       path: a checkpoint directory, e.g. `latest(directory)`.
@@ -226,11 +335,16 @@ def restore(
       bit-exact, and the metadata dict given to `save`.
 
     Raises:
+      CheckpointError: if a file is missing or does not match the manifest.
       ValueError: if the leaf count, a shape, a dtype or the structure differs.
     """
     path = Path(path)
-    with open(path / META_FILE, encoding="utf-8") as f:
-        meta = json.load(f)
+    verify(path)
+    meta = _read_json(path / META_FILE)
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(
+            f"{META_FILE} has format version {meta.get('format_version')}, expected {FORMAT_VERSION}"
+        )
     named, treedef = jax.tree_util.tree_flatten_with_path(template)
     if meta["num_leaves"] != len(named):
         raise ValueError(
@@ -260,15 +374,45 @@ def restore(
         )
 
     leaves = []
-    with np.load(path / STATE_FILE, allow_pickle=False) as npz:
-        for i, saved in enumerate(meta["leaves"]):
-            data = npz[_leaf_name(i)]
-            if saved["key_impl"] is not None:
-                leaves.append(jax.random.wrap_key_data(data, impl=saved["key_impl"]))
-                continue
-            dtype = jnp.dtype(saved["dtype"])
-            if data.dtype != dtype:
-                # Extension dtypes (bfloat16, float8) are stored as raw bytes.
-                data = data.view(dtype)
-            leaves.append(jnp.asarray(data))
+    try:
+        with np.load(path / STATE_FILE, allow_pickle=False) as npz:
+            for i, saved in enumerate(meta["leaves"]):
+                data = npz[_leaf_name(i)]
+                if saved["key_impl"] is not None:
+                    leaves.append(jax.random.wrap_key_data(data, impl=saved["key_impl"]))
+                    continue
+                dtype = jnp.dtype(saved["dtype"])
+                if data.dtype != dtype:
+                    # Extension dtypes (bfloat16, float8) are stored as raw bytes.
+                    data = data.view(dtype)
+                leaves.append(jnp.asarray(data))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        raise CheckpointError(f"{STATE_FILE} is unreadable ({type(e).__name__}: {e})") from e
     return jax.tree_util.tree_unflatten(treedef, leaves), meta["metadata"]
+
+
+def restore_newest(
+    directory: str | os.PathLike[str], template: PyTree
+) -> tuple[PyTree, dict[str, Any], Path, list[tuple[Path, str]]]:
+    """The newest checkpoint in `directory` that verifies and loads into `template`.
+
+    Returns:
+      `(state, metadata, path, skipped)`: `skipped` lists each newer checkpoint
+      that failed, with the reason.
+
+    Raises:
+      CheckpointError: naming each checkpoint and why it failed, when none loads
+        (or there is none).
+    """
+    skipped: list[tuple[Path, str]] = []
+    for path in checkpoints(directory):
+        try:
+            state, metadata = restore(path, template)
+        except ValueError as e:  # CheckpointError included
+            skipped.append((path, str(e).splitlines()[0]))
+            continue
+        return state, metadata, path, skipped
+    if not skipped:
+        raise CheckpointError(f"no checkpoint in {directory}")
+    reasons = "; ".join(f"{p.name}: {why}" for p, why in skipped)
+    raise CheckpointError(f"no usable checkpoint in {directory} ({reasons})")

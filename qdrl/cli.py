@@ -16,10 +16,60 @@ def _spec_dirs() -> list[Path]:
     return [d for d in dict.fromkeys([here, repo]) if d.is_dir()]
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    from qdrl.config import ConfigError
-    from qdrl.experiment import check_spec_file, run_spec
+def _report_crash(exc: BaseException, run_dir: Path | None, argv: list[str]) -> int:
+    """Writes the traceback to `run_dir`/error.log (else a temporary file) and prints one line."""
+    import tempfile
+    import time
+    import traceback
 
+    text = (
+        f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} qdrl {' '.join(argv)}\n"
+        + "".join(traceback.format_exception(exc))
+    )
+    path = None
+    if run_dir is not None and run_dir.is_dir():
+        with contextlib.suppress(OSError), (run_dir / "error.log").open("a") as f:
+            f.write(text)
+            path = run_dir / "error.log"
+    if path is None:
+        fd, name = tempfile.mkstemp(prefix="qdrl-error-", suffix=".log")
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        path = Path(name)
+    lines = str(exc).strip().splitlines()
+    what = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+    print(f"qdrl: error: {what} (full traceback in {path})", file=sys.stderr)
+    return 1
+
+
+def _interrupted() -> int:
+    """Exit status 130 for Ctrl-C; at once if a worker thread still compiles or computes.
+
+    Python's shutdown would stop that thread inside XLA, which aborts the process
+    with a C++ error instead of exiting.
+    """
+    import threading
+
+    if any(t.name == "qdrl-worker" and t.is_alive() for t in threading.enumerate()):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    return 130
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from qdrl import checkpoint
+    from qdrl.config import ConfigError
+    from qdrl.experiment import (
+        RunInterrupted,
+        check_spec_file,
+        default_out_dir,
+        resume_command,
+        run_spec,
+    )
+
+    out_dir = Path(args.out) if args.out else default_out_dir(args.spec)
+    resume = resume_command(args.spec, args.set, out_dir)
     try:
         # Libraries print notices on stdout (mujoco-mjx: "Failed to import warp");
         # stdout carries only the JSON summary (with --check: the resolved spec).
@@ -27,10 +77,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
             if args.check:
                 resolved = check_spec_file(args.spec, args.set)
             else:
-                summary = run_spec(args.spec, args.set, args.out, args.resume, args.overwrite)
+                summary = run_spec(args.spec, args.set, out_dir, args.resume, args.overwrite)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
+    except RunInterrupted as e:
+        print(f"qdrl: {e}", file=sys.stderr)
+        if e.checkpoint is not None:
+            print(f"qdrl: resume with: {resume}", file=sys.stderr)
+        return _interrupted()
+    except KeyboardInterrupt:
+        newest = checkpoint.latest(out_dir / "checkpoints")
+        if newest is None:
+            print("qdrl: aborted; no checkpoint was saved", file=sys.stderr)
+        else:
+            print(f"qdrl: aborted; {newest} is the newest checkpoint", file=sys.stderr)
+            print(f"qdrl: resume with: {resume}", file=sys.stderr)
+        return _interrupted()
+    except Exception as e:  # anything else: one line here, the traceback in a file
+        return _report_crash(e, out_dir, args.argv)
     print(resolved if args.check else json.dumps(summary, indent=2))
     return 0
 
@@ -84,7 +149,11 @@ def main(argv: list[str] | None = None) -> int:
         help="override one spec value (repeatable); VALUE is read as TOML",
     )
     p_run.add_argument("--out", default=None, help="output directory (default: runs/<spec name>)")
-    p_run.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
+    p_run.add_argument(
+        "--resume", action="store_true",
+        help="continue from the newest usable checkpoint; with a larger qd.num_iterations or "
+        "train.total_env_steps (--set), extend a finished run",
+    )
     p_run.add_argument("--overwrite", action="store_true", help="discard an existing run in --out")
     p_run.add_argument(
         "--check", action="store_true",
@@ -108,7 +177,14 @@ def main(argv: list[str] | None = None) -> int:
     p_bench.set_defaults(fn=_cmd_bench)
 
     args = parser.parse_args(argv)
-    return int(args.fn(args))
+    args.argv = sys.argv[1:] if argv is None else argv
+    try:
+        return int(args.fn(args))
+    except KeyboardInterrupt:
+        print("qdrl: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # one line on the terminal, the traceback in a file
+        return _report_crash(e, None, args.argv)
 
 
 if __name__ == "__main__":

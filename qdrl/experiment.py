@@ -2,8 +2,10 @@
 
 The algorithm is a `Run`: it builds its state, compiles its chunk function once
 ahead of time, and turns a chunk's result into one row of metrics. The driver
-owns everything around it: the output directory, the progress bar,
-`metrics.csv`, periodic atomic checkpoints, `--resume`, `summary.json` and plots.
+owns everything around it: the output directory, the progress line (a compile
+timer, then a bar over iterations or env steps), `metrics.csv`, checkpoints
+named by log point, `--resume` (falling back past unusable checkpoints, and
+extending a run when only its length changed), Ctrl-C, `summary.json` and plots.
 Python runs only between chunks.
 """
 
@@ -13,7 +15,11 @@ import csv
 import dataclasses
 import json
 import math
+import shlex
+import shutil
+import sys
 import time
+import tomllib
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Annotated, Any, NamedTuple, Protocol
@@ -21,7 +27,7 @@ from typing import Annotated, Any, NamedTuple, Protocol
 import jax
 import numpy as np
 
-from qdrl import checkpoint
+from qdrl import checkpoint, compile_cache, interrupt
 from qdrl.config import (
     ConfigError,
     OneOf,
@@ -34,6 +40,7 @@ from qdrl.config import (
     dump_toml,
     load_toml,
 )
+from qdrl.progress import RunProgress
 
 
 def algorithm_names() -> list[str]:
@@ -66,6 +73,7 @@ class LogConfig:
     keep_checkpoints: PositiveInt = 2  # newest checkpoints kept on disk
     progress: bool = True  # show a progress bar
     plots: bool = True  # write plots/*.png at the end
+    compile_cache: bool = True  # jax's persistent compilation cache (qdrl.compile_cache)
 
     def check(self) -> None:
         check_fields(self, "log")
@@ -79,6 +87,10 @@ class Run(Protocol):
     num_chunks: int  # log points in the whole run
     sections: dict[str, Any]  # resolved config dataclasses, by section name
     progress_keys: tuple[str, ...]  # row keys shown on the progress bar
+    # What the progress bar counts: a row key ("iteration", "env_steps"), or
+    # "log_point" for log points, and its value at the end of the run.
+    progress_unit: str
+    progress_total: int
 
     def init(self, key: jax.Array) -> Any:
         """The run's initial state (a pytree), before any compilation."""
@@ -93,7 +105,10 @@ class Run(Protocol):
         ...
 
     def log_row(self, state: Any, chunk_metrics: Any, chunk: int) -> dict[str, float]:
-        """One row of metrics after chunk `chunk`; must include `env_steps`."""
+        """One row of metrics after chunk `chunk`; must include `env_steps`.
+
+        Counts are Python ints (see `scalar`), so metrics.csv writes them as integers.
+        """
         ...
 
     def finish(self, state: Any, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
@@ -122,6 +137,17 @@ RUNS: dict[str, Algorithm] = {}
 def register(name: str, parse: SpecParser, build: RunBuilder) -> None:
     """Register an algorithm: its spec parser and its run builder."""
     RUNS[name] = Algorithm(parse, build)
+
+
+def scalar(x: Any) -> int | float:
+    """A 0-d metric as a Python number: an int for integer and bool dtypes, else a float."""
+    a = np.asarray(x)
+    return int(a) if a.dtype.kind in "biu" else float(a)
+
+
+# The keys that set a run's length: the only ones (with [log]) that may change on
+# --resume, which then extends (or finishes) the run.
+LENGTH_KEYS: tuple[str, ...] = ("qd.num_iterations", "train.total_env_steps")
 
 
 def _load_builtin_runs() -> None:
@@ -177,11 +203,18 @@ def resolved_toml(run: Run, exp: ExperimentConfig, log: LogConfig) -> str:
     return dump_toml(sections)
 
 
+def _parse_cell(text: str) -> int | float:
+    try:
+        return int(text)
+    except ValueError:
+        return float(text)
+
+
 def _read_rows(path: Path) -> list[dict[str, float]]:
     if not path.exists():
         return []
     with path.open() as f:
-        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+        return [{k: _parse_cell(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 
 def _write_rows(path: Path, rows: list[dict[str, float]]) -> None:
@@ -204,7 +237,60 @@ def _append_row(path: Path, row: dict[str, float]) -> None:
 
 
 def _fmt(x: float) -> str:
+    if isinstance(x, int):
+        return str(x)
     return f"{x:.4g}" if math.isfinite(x) else "nan"
+
+
+def _flat(toml_text: str) -> dict[str, Any]:
+    return {f"{s}.{k}": v for s, table in tomllib.loads(toml_text).items() for k, v in table.items()}
+
+
+def _show(value: Any) -> str:
+    return "(absent)" if value is _ABSENT else json.dumps(value)
+
+
+_ABSENT = object()
+
+
+def spec_changes(old_toml: str, new_toml: str) -> list[tuple[str, Any, Any]]:
+    """`(section.key, old, new)` for each key whose value differs (`_ABSENT` where missing)."""
+    old, new = _flat(old_toml), _flat(new_toml)
+    keys = [*old, *(k for k in new if k not in old)]
+    return [(k, old.get(k, _ABSENT), new.get(k, _ABSENT)) for k in keys if old.get(k, _ABSENT) != new.get(k, _ABSENT)]
+
+
+def _check_resume_spec(config_path: Path, config_text: str) -> None:
+    """Raises ConfigError naming each differing key unless only length keys and [log] differ."""
+    if not config_path.is_file():
+        raise ConfigError(f"--resume: {config_path} is missing; expected the resolved spec of the run")
+    changes = spec_changes(config_path.read_text(), config_text)
+    fixed = [c for c in changes if c[0] not in LENGTH_KEYS and not c[0].startswith("log.")]
+    if fixed:
+        listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in changes)
+        raise ConfigError(
+            f"--resume: the spec differs from {config_path}: {listed}; only "
+            f"{' or '.join(LENGTH_KEYS)} (to extend the run) and [log] may change on resume"
+        )
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a run cleanly; `checkpoint` holds its newest complete log point (or None)."""
+
+    def __init__(self, out_dir: Path, checkpoint: Path | None, log_points: int, num_chunks: int) -> None:
+        self.out_dir, self.checkpoint = out_dir, checkpoint
+        self.log_points, self.num_chunks = log_points, num_chunks
+        if checkpoint is None:
+            text = f"interrupted before the first log point of {num_chunks}; nothing saved"
+        else:
+            text = (f"interrupted at log point {log_points} of {num_chunks}; "
+                    f"{checkpoint} holds the run up to there")
+        super().__init__(text)
+
+
+def default_out_dir(spec_path: str | Path) -> Path:
+    """Where `qdrl run SPEC` writes without --out: runs/<spec file stem>."""
+    return Path("runs") / Path(spec_path).stem
 
 
 def run_spec(
@@ -216,7 +302,7 @@ def run_spec(
 ) -> dict[str, Any]:
     """Run the spec at `spec_path` (with `--set` overrides) and return its summary."""
     spec = load_spec(spec_path, overrides)
-    out = Path(out_dir) if out_dir else Path("runs") / Path(spec_path).stem
+    out = Path(out_dir) if out_dir else default_out_dir(spec_path)
     return run(spec, out, resume, overwrite)
 
 
@@ -236,86 +322,136 @@ def check_spec_file(spec_path: str | Path, overrides: list[str] | None = None) -
     return resolved_toml(*build_run(load_spec(spec_path, overrides)))
 
 
+def _progress_value(run_: Run, row: Mapping[str, float], chunk: int) -> int:
+    return chunk + 1 if run_.progress_unit == "log_point" else int(row[run_.progress_unit])
+
+
 def run(
     spec: Mapping[str, Any], out_dir: Path, resume: bool = False, overwrite: bool = False
 ) -> dict[str, Any]:
-    """Run a parsed spec into `out_dir`; see the module docstring for what it writes."""
+    """Run a parsed spec into `out_dir`; see the module docstring for what it writes.
+
+    Raises:
+      ConfigError: a bad spec, or a --resume that cannot be honoured; before any compilation.
+      RunInterrupted: Ctrl-C stopped the run (after checkpointing its last complete chunk).
+      KeyboardInterrupt: a second Ctrl-C aborted it; the newest checkpoint on disk is kept.
+    """
     started = time.perf_counter()
     run_, exp, log = build_run(spec)
     config_text = resolved_toml(run_, exp, log)
     ckpt_dir = out_dir / "checkpoints"
-    latest = checkpoint.latest(ckpt_dir)
-    if latest is not None and not resume and not overwrite:
+    found = checkpoint.checkpoints(ckpt_dir)
+    if found and not resume and not overwrite:
         raise ConfigError(
             f"{out_dir} already holds a run with checkpoints; pass --resume to continue it, "
             "--overwrite to discard it, or --out for a new directory"
         )
-    if resume and latest is None:
-        raise ConfigError(f"--resume: no checkpoint found in {ckpt_dir}")
     if resume:
-        old = (out_dir / "config.toml").read_text() if (out_dir / "config.toml").exists() else ""
-        if old != config_text:
-            raise ConfigError(
-                f"--resume: the spec differs from the one in {out_dir / 'config.toml'}; "
-                "resume with the same spec and --set values"
-            )
+        if not found:
+            raise ConfigError(f"--resume: no checkpoint found in {ckpt_dir}")
+        _check_resume_spec(out_dir / "config.toml", config_text)
+        _check_resume_checkpoints(found, run_)
     if overwrite and not resume and out_dir.exists():
-        import shutil
-
         shutil.rmtree(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.toml").write_text(config_text)
+    if not resume:
+        (out_dir / "config.toml").write_text(config_text)
 
-    state = run_.init(jax.random.PRNGKey(exp.seed))
-    start_chunk, wall_offset, run_s, rows = 0, 0.0, 0.0, []
-    metrics_path = out_dir / "metrics.csv"
-    if resume and latest is not None:
-        state, meta = checkpoint.restore(latest, state)
-        start_chunk = int(meta["chunk"]) + 1
-        wall_offset, run_s = float(meta["wall_s"]), float(meta["run_s"])
-        rows = _read_rows(metrics_path)[:start_chunk]
-        _write_rows(metrics_path, rows)
-    elif metrics_path.exists():
-        metrics_path.unlink()
+    label = f"{exp.algorithm} on {run_.task}"
+    progress = RunProgress(log.progress, label, run_.progress_unit, run_.progress_total)
+    key = compile_cache.spec_key(config_text)
+    stop_message = (
+        "qdrl: stopping after the chunk in flight and saving a checkpoint "
+        "(press Ctrl-C again to abort at once; the checkpoints on disk are kept)"
+    )
+    with compile_cache.enabled(log.compile_cache), interrupt.Interrupts(stop_message) as stop, \
+            interrupt.Worker() as worker:
 
-    compile_s = run_.compile(state)
-    progress = None
-    if log.progress:
-        from tqdm import tqdm
+        def prepare() -> tuple[Any, dict[str, Any], Path | None, list[tuple[Path, str]], float]:
+            state = run_.init(jax.random.PRNGKey(exp.seed))
+            meta: dict[str, Any] = {}
+            path: Path | None = None
+            skipped: list[tuple[Path, str]] = []
+            if resume:
+                state, meta, path, skipped = checkpoint.restore_newest(ckpt_dir, state)
+                if int(meta["chunk"]) + 1 >= run_.num_chunks:  # finished: nothing to compile
+                    return state, meta, path, skipped, 0.0
+            return state, meta, path, skipped, run_.compile(state)
 
-        progress = tqdm(total=run_.num_chunks, initial=start_chunk, unit="log", dynamic_ncols=True)
-        progress.set_description(f"{exp.algorithm} {run_.task}")
-    for chunk in range(start_chunk, run_.num_chunks):
+        progress.compiling(compile_cache.estimate(key, exp.algorithm, run_.task))
         t0 = time.perf_counter()
-        state, metrics = run_.run_chunk(state)
-        jax.block_until_ready(state)
-        run_s += time.perf_counter() - t0
-        row = run_.log_row(state, metrics, chunk)
-        # Wall time since the run's start, compilation included; a resumed run adds
-        # the time of its earlier sessions.
-        wall_s = wall_offset + time.perf_counter() - started
-        row = {"log_point": float(chunk), **row, "wall_s": wall_s}
-        # Throughput excludes compilation; QD runs also count evaluations.
-        row["env_steps_per_s"] = row["env_steps"] / run_s if run_s > 0 else math.nan
-        if "evaluations" in row:
-            row["evaluations_per_s"] = row["evaluations"] / run_s if run_s > 0 else math.nan
-        rows.append(row)
-        _append_row(metrics_path, row)
-        last = chunk == run_.num_chunks - 1
-        if (chunk + 1) % log.checkpoint_every == 0 or last:
-            checkpoint.save(
-                ckpt_dir,
-                int(row["env_steps"]),
-                jax.device_get(state),
-                {"chunk": chunk, "wall_s": wall_s, "run_s": run_s},
-                keep=log.keep_checkpoints,
-            )
-        if progress is not None:
-            progress.update(1)
-            shown = {k: _fmt(v) for k, v in row.items() if k in run_.progress_keys}
-            progress.set_postfix(steps_per_s=f"{row['env_steps_per_s']:.0f}", **shown)
-    if progress is not None:
-        progress.close()
+        try:
+            with compile_cache.cache_hits() as cache:
+                state, meta, restored, skipped, compile_s = worker.call(prepare, tick=progress.tick)
+        except KeyboardInterrupt:
+            progress.close()
+            raise RunInterrupted(out_dir, *_newest_log_point(ckpt_dir), run_.num_chunks) from None
+        except checkpoint.CheckpointError as e:
+            progress.close()
+            raise ConfigError(f"--resume: {e}") from None
+        startup_s = time.perf_counter() - t0
+        progress.compiled(startup_s)
+        compile_cache.record(key, exp.algorithm, run_.task, startup_s, cold=cache["hits"] == 0)
+
+        start_chunk, wall_offset, run_s, rows = 0, 0.0, 0.0, []
+        metrics_path = out_dir / "metrics.csv"
+        if restored is not None:
+            for path, why in skipped:
+                checkpoint.remove(path)
+                print(f"qdrl: --resume: {path.name} is unusable ({why}); removed it", file=sys.stderr)
+            start_chunk = int(meta["chunk"]) + 1
+            if skipped:
+                print(
+                    f"qdrl: --resume: resuming from {restored.name} (log point {start_chunk} of "
+                    f"{run_.num_chunks})", file=sys.stderr,
+                )
+            wall_offset, run_s = float(meta["wall_s"]), float(meta["run_s"])
+            rows = _read_rows(metrics_path)[:start_chunk]
+            _write_rows(metrics_path, rows)
+            (out_dir / "config.toml").write_text(config_text)
+        elif metrics_path.exists():
+            metrics_path.unlink()
+        (out_dir / "summary.json").unlink(missing_ok=True)  # rewritten when the run ends
+
+        stop.abort_at_once = False
+        progress.start(_progress_value(run_, rows[-1], start_chunk - 1) if rows else 0)
+        last_saved = restored
+
+        def save(chunk: int, row: Mapping[str, float], wall_s: float) -> Path:
+            meta = {"chunk": chunk, "env_steps": int(row["env_steps"]), "wall_s": wall_s, "run_s": run_s}
+            return checkpoint.save(ckpt_dir, chunk + 1, jax.device_get(state), meta, keep=log.keep_checkpoints)
+
+        try:
+            for chunk in range(start_chunk, run_.num_chunks):
+                t0 = time.perf_counter()
+                state, metrics = run_.run_chunk(state)
+                worker.wait_ready((state, metrics))
+                run_s += time.perf_counter() - t0
+                row = run_.log_row(state, metrics, chunk)
+                # Wall time since the run's start, compilation included; a resumed run adds
+                # the time of its earlier sessions.
+                wall_s = wall_offset + time.perf_counter() - started
+                row = {"log_point": chunk, **row, "wall_s": wall_s}
+                # Throughput excludes compilation; QD runs also count evaluations.
+                row["env_steps_per_s"] = row["env_steps"] / run_s if run_s > 0 else math.nan
+                if "evaluations" in row:
+                    row["evaluations_per_s"] = row["evaluations"] / run_s if run_s > 0 else math.nan
+                rows.append(row)
+                _append_row(metrics_path, row)
+                last = chunk == run_.num_chunks - 1
+                saved = (chunk + 1) % log.checkpoint_every == 0 or last
+                if saved:
+                    last_saved = save(chunk, row, wall_s)
+                progress.update(
+                    _progress_value(run_, row, chunk),
+                    {k: _fmt(v) for k, v in row.items() if k in run_.progress_keys},
+                )
+                if stop.requested and not last:
+                    if not saved:
+                        last_saved = save(chunk, row, wall_s)
+                    raise RunInterrupted(out_dir, last_saved, chunk + 1, run_.num_chunks)
+        finally:
+            progress.close()
 
     final = rows[-1] if rows else {}
     summary: dict[str, Any] = {
@@ -340,6 +476,45 @@ def run(
     summary = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default) + "\n")
     return summary
+
+
+def _newest_log_point(ckpt_dir: Path) -> tuple[Path | None, int]:
+    """The newest checkpoint that verifies and the log points it holds; (None, 0) without one."""
+    for path in checkpoint.checkpoints(ckpt_dir):
+        try:
+            checkpoint.verify(path)
+            return path, int(checkpoint.read_metadata(path)["chunk"]) + 1
+        except (checkpoint.CheckpointError, KeyError, TypeError, ValueError):
+            continue
+    return None, 0
+
+
+def _check_resume_checkpoints(found: list[Path], run_: Run) -> None:
+    """Fails fast (before compiling) when no checkpoint verifies or the new length is too short."""
+    reasons = []
+    for path in found:
+        try:
+            checkpoint.verify(path)
+            done = int(checkpoint.read_metadata(path)["chunk"]) + 1
+        except (checkpoint.CheckpointError, KeyError, TypeError, ValueError) as e:
+            reasons.append(f"{path.name}: {e}")
+            continue
+        if done > run_.num_chunks:
+            raise ConfigError(
+                f"--resume: expected a length of at least the {done} log points already run "
+                f"({path.name}), got {run_.num_chunks}; only a longer or equal "
+                f"{' or '.join(LENGTH_KEYS)} may be given"
+            )
+        return
+    raise ConfigError(f"--resume: no usable checkpoint in {found[0].parent} ({'; '.join(reasons)})")
+
+
+def resume_command(spec_path: str | Path, overrides: list[str], out_dir: str | Path) -> str:
+    """The shell command that resumes a run started by `qdrl run` with these arguments."""
+    args = ["qdrl", "run", str(spec_path)]
+    for text in overrides:
+        args += ["--set", text]
+    return shlex.join([*args, "--out", str(out_dir), "--resume"])
 
 
 def _json_default(x: Any) -> Any:

@@ -1,4 +1,4 @@
-"""Tests for qdrl.checkpoint: bit-exact roundtrip, latest, pruning, crash safety, errors."""
+"""Tests for qdrl.checkpoint: bit-exact roundtrip, latest, pruning, crash safety, verification, errors."""
 
 from __future__ import annotations
 
@@ -71,6 +71,8 @@ def test_roundtrip_is_bit_exact(tmp_path: Path) -> None:
     path = checkpoint.save(tmp_path, 1000, state, meta)
     assert path == tmp_path / "step_0000001000"
     assert (path / "state.npz").is_file() and (path / "meta.json").is_file()
+    assert (path / "manifest.json").is_file()
+    checkpoint.verify(path)
 
     restored, got_meta = checkpoint.restore(path, make_state(seed=1))
     assert_bit_exact(state, restored)
@@ -217,3 +219,97 @@ def test_survives_sigkill_at_any_moment(tmp_path: Path, delay_s: float) -> None:
     step = checkpoint.step_of(path)
     assert meta == {"step": step} and int(state["step"]) == step
     assert bool((state["x"] == step).all())
+
+
+def _corrupt(path: Path, mode: str) -> None:
+    if mode == "delete":
+        path.unlink()
+    elif mode == "truncate":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    else:  # garbage: same size, bytes flipped in the middle
+        data = bytearray(path.read_bytes())
+        mid = len(data) // 2
+        data[mid : mid + 8] = bytes(b ^ 0xFF for b in data[mid : mid + 8])
+        path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("mode", ["truncate", "garbage", "delete"])
+@pytest.mark.parametrize("name", ["state.npz", "meta.json", "manifest.json"])
+def test_a_corrupt_checkpoint_is_detected_and_skipped(tmp_path: Path, name: str, mode: str) -> None:
+    template = {"x": jnp.zeros(1000), "k": jax.random.key(0)}
+    for step in (1, 2):
+        checkpoint.save(tmp_path, step, {"x": jnp.full(1000, float(step)), "k": jax.random.key(step)}, {"s": step})
+    newest = tmp_path / "step_0000000002"
+    _corrupt(newest / name, mode)
+    with pytest.raises(checkpoint.CheckpointError, match=name.replace(".", r"\.")) as info:
+        checkpoint.restore(newest, template)
+    assert "\n" not in str(info.value)
+    state, meta, path, skipped = checkpoint.restore_newest(tmp_path, template)
+    assert path == tmp_path / "step_0000000001" and meta == {"s": 1}
+    np.testing.assert_array_equal(state["x"], np.ones(1000))
+    assert [(p.name, name in why) for p, why in skipped] == [("step_0000000002", True)]
+
+
+def test_restore_newest_fails_in_one_line_when_nothing_loads(tmp_path: Path) -> None:
+    with pytest.raises(checkpoint.CheckpointError, match="no checkpoint in"):
+        checkpoint.restore_newest(tmp_path, {"x": jnp.zeros(2)})
+    checkpoint.save(tmp_path, 1, {"x": jnp.zeros(2)}, {})
+    checkpoint.save(tmp_path, 2, {"x": jnp.zeros(2)}, {})
+    (tmp_path / "step_0000000002" / "state.npz").unlink()
+    # A template of another shape: the older checkpoint loads no better.
+    with pytest.raises(checkpoint.CheckpointError) as info:
+        checkpoint.restore_newest(tmp_path, {"x": jnp.zeros(3)})
+    msg = str(info.value)
+    assert "\n" not in msg
+    assert "step_0000000002: state.npz is missing" in msg
+    assert "step_0000000001: checkpoint" in msg and "does not match the template" in msg
+
+
+_KILLER = textwrap.dedent(
+    """
+    import os, sys
+    import numpy as np
+    from qdrl import checkpoint
+    directory, phase, step = sys.argv[1], sys.argv[2], int(sys.argv[3])
+    for s in (1, 2):
+        checkpoint.save(directory, s, {"x": np.full(1000, s, np.float32)}, {"s": s}, keep=2)
+    def crash(p):
+        if p == phase:
+            os._exit(17)  # no cleanup, no flush: what SIGKILL leaves
+    checkpoint._crash_point = crash
+    checkpoint.save(directory, step, {"x": np.full(1000, step, np.float32)}, {"s": step}, keep=2)
+    """
+)
+
+
+def test_a_save_killed_between_any_two_steps_leaves_a_complete_checkpoint(tmp_path: Path) -> None:
+    # (phase killed in, step saved, the newest checkpoint that must load after the kill)
+    cases = [
+        ("files_written", 3, 2), ("manifest_written", 3, 2), ("renamed", 3, 3), ("pruned", 3, 3),
+        ("moved_aside", 2, 1),  # replacing an existing step: the older one survives
+    ]
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+    procs = [
+        subprocess.Popen([sys.executable, "-c", _KILLER, str(tmp_path / phase), phase, str(step)], env=env)
+        for phase, step, _ in cases
+    ]
+    for (phase, _, expected), proc in zip(cases, procs, strict=True):
+        assert proc.wait(timeout=120) == 17, phase
+        state, meta, path, _ = checkpoint.restore_newest(tmp_path / phase, {"x": np.zeros(1000, np.float32)})
+        assert meta == {"s": expected} and checkpoint.step_of(path) == expected, phase
+        assert bool((state["x"] == expected).all()), phase
+        # A later save cleans the leftovers up and prunes to `keep` again.
+        checkpoint.save(tmp_path / phase, 4, {"x": np.zeros(1000, np.float32)}, {}, keep=2)
+        names = sorted(p.name for p in (tmp_path / phase).iterdir())
+        assert names[-1] == "step_0000000004" and len(names) == 2, (phase, names)
+
+
+def test_a_checkpoint_of_the_first_format_is_named_as_such(tmp_path: Path) -> None:
+    path = checkpoint.save(tmp_path, 1, {"x": jnp.zeros(2)}, {})
+    (path / "manifest.json").unlink()
+    meta = json.loads((path / "meta.json").read_text())
+    (path / "meta.json").write_text(json.dumps({**meta, "format_version": 1}))
+    with pytest.raises(checkpoint.CheckpointError, match="format 1 by an older qdrl"):
+        checkpoint.restore(path, {"x": jnp.zeros(2)})

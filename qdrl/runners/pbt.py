@@ -22,7 +22,7 @@ import numpy as np
 
 from qdrl import pbt
 from qdrl.config import ConfigError, build
-from qdrl.experiment import ExperimentConfig, Sections, register
+from qdrl.experiment import ExperimentConfig, Sections, register, scalar
 from qdrl.off_policy import TrainState
 from qdrl.qd.emitters.me_pbt import MEPBTConfig
 from qdrl.qd.metrics import qd_metrics
@@ -52,6 +52,7 @@ class PBTRun(OffPolicyRun):
         self.algorithm = exp.algorithm
         self.agent_name = agent_name
         self.pbt_cfg: pbt.PBTConfig = sections["pbt"]
+        self.progress_total *= self.pbt_cfg.population_size  # env_steps counts every member's
         example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
         self.space = pbt.search_space(agent_name, self.pbt_cfg, example.hparams)
         self._pbt_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x9B7)
@@ -113,17 +114,17 @@ class PBTRun(OffPolicyRun):
 
     def log_row(self, state: PBTState, chunk_metrics: Any, chunk: int) -> dict[str, float]:  # type: ignore[override]
         m = jax.device_get(chunk_metrics)
-        member_steps = float(np.asarray(state.population.env_steps)[0])
-        row = {
+        member_steps = int(np.asarray(state.population.env_steps)[0])
+        row: dict[str, float] = {
             "env_steps": member_steps * self.pbt_cfg.population_size,
             "member_env_steps": member_steps,
-            "grad_steps": float(np.asarray(state.population.grad_steps).sum()),
+            "grad_steps": int(np.asarray(state.population.grad_steps).sum()),
         }
         for i, r in enumerate(np.asarray(m.pop("eval_returns_members"))):
             row[f"eval_return_m{i}"] = float(r)
         for name, v in zip(self.space.names, np.asarray(m.pop("hparams_best")), strict=True):
             row[f"best_{name}"] = float(v)
-        row.update({k: float(v) for k, v in m.items()})
+        row.update({k: scalar(v) for k, v in m.items()})
         return row
 
     def finish(self, state: PBTState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:  # type: ignore[override]
@@ -251,7 +252,7 @@ class MEPBTRun(QDRun):
 
     def log_row(self, state: Any, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row = super().log_row(state, chunk_metrics, chunk)
-        train_steps = float(np.asarray(state.emitter_state.population.env_steps).sum())
+        train_steps = int(np.asarray(state.emitter_state.population.env_steps).sum())
         row["train_env_steps"] = train_steps
         row["eval_env_steps"] = row["env_steps"]
         row["env_steps"] = row["eval_env_steps"] + train_steps

@@ -25,7 +25,7 @@ from qdrl.config import (
     check_params,
     check_table,
 )
-from qdrl.experiment import ExperimentConfig, Sections, register
+from qdrl.experiment import ExperimentConfig, Sections, register, scalar
 from qdrl.qd.emitters.dcrl import DCRLConfig
 from qdrl.qd.emitters.pg import PGConfig
 
@@ -177,6 +177,7 @@ class QDRun:
         self.algorithm = exp.algorithm
         self.task = str(sections["task"]["name"])
         self.num_chunks = self.qd_cfg.num_iterations // self.qd_cfg.log_every
+        self.progress_unit, self.progress_total = "iteration", self.qd_cfg.num_iterations
         self.seed = exp.seed
         self._chunk: Any = None
         self.map_elites: MapElites | None = None
@@ -248,13 +249,13 @@ class QDRun:
 
     def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         m = jax.device_get(chunk_metrics)
-        row = {
-            "iteration": float(state.iteration),
-            "evaluations": float(state.evaluations),
-            "env_steps": float(state.env_steps),
+        row: dict[str, float] = {
+            "iteration": int(state.iteration),
+            "evaluations": int(state.evaluations),
+            "env_steps": int(state.env_steps),
         }
         for key in ("qd_score", "coverage", "max_fitness", "mean_fitness", "num_elites"):
-            row[key] = float(np.asarray(m[key])[-1])
+            row[key] = scalar(np.asarray(m[key])[-1])
         row["added_per_iter"] = float(np.mean(m["added"]))
         return row
 
@@ -366,8 +367,8 @@ class PGAMERun(QDRun):
     def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row = super().log_row(state, chunk_metrics, chunk)
         pg_state = state.emitter_state[1]  # the Q-PG emitter's
-        row["critic_steps"] = float(pg_state.td3.steps)
-        row["buffer_size"] = float(pg_state.buffer.size)
+        row["critic_steps"] = int(pg_state.td3.steps)
+        row["buffer_size"] = int(pg_state.buffer.size)
         return row
 
 
@@ -416,7 +417,7 @@ class QDPGRun(PGAMERun):
 
     def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row = super().log_row(state, chunk_metrics, chunk)
-        row["novelty_archive_size"] = float(state.emitter_state[2].relabel.size)
+        row["novelty_archive_size"] = int(state.emitter_state[2].relabel.size)
         return row
 
 
@@ -485,8 +486,8 @@ class DCRLMERun(QDRun):
     def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row = super().log_row(state, chunk_metrics, chunk)
         dcrl_state = state.emitter_state[0]  # the DCRL emitter's (first in the batch)
-        row["critic_steps"] = float(dcrl_state.td3.steps)
-        row["buffer_size"] = float(dcrl_state.buffer.size)
+        row["critic_steps"] = int(dcrl_state.td3.steps)
+        row["buffer_size"] = int(dcrl_state.buffer.size)
         return row
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from qdrl.config import ConfigError, OneOf, PositiveInt, build
 from qdrl.envs import env_names, make
 from qdrl.envs.brax import STATE_DESCRIPTORS, Backend
-from qdrl.experiment import ExperimentConfig, Sections, register
+from qdrl.experiment import ExperimentConfig, Sections, register, scalar
 from qdrl.off_policy import TrainConfig, TrainState, make_trainer
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
@@ -112,6 +112,7 @@ class OffPolicyRun:
             )
         self.trainer = make_trainer(self.env, self.agent, train_cfg)
         self.num_chunks = train_cfg.num_chunks
+        self.progress_unit, self.progress_total = "env_steps", train_cfg.num_chunks * train_cfg.eval_every
         self._eval_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x5EED)
         self._chunk: Any = None
 
@@ -144,11 +145,11 @@ class OffPolicyRun:
         return self._chunk(state)
 
     def log_row(self, state: RLState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
-        row = {"env_steps": float(state.train.env_steps), "grad_steps": float(state.train.grad_steps)}
+        row: dict[str, float] = {"env_steps": int(state.train.env_steps), "grad_steps": int(state.train.grad_steps)}
         m = jax.device_get(chunk_metrics)
         for key in ("eval_return", "eval_return_std", "eval_length"):
             row[key] = float(m.pop(key))
-        row.update({k: float(v) for k, v in m.items()})
+        row.update({k: scalar(v) for k, v in m.items()})
         return row
 
     def finish(self, state: RLState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:

@@ -126,6 +126,7 @@ class SkillRun(OffPolicyRun):
         self.trainer = make_trainer(self.env, self.agent, train_cfg, storage)
         self.num_eval = train_cfg.num_eval_envs
         self.num_chunks = train_cfg.num_chunks
+        self.progress_unit, self.progress_total = "env_steps", train_cfg.num_chunks * train_cfg.eval_every
         self.progress_keys = ("eval_return", "coverage", *self._model_metric_names()[:1])
         self._eval_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x5EED)
         self._chunk: Any = None
