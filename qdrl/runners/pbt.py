@@ -218,7 +218,7 @@ class MEPBTRun(QDRun):
         self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg)
 
     def _build(self, key: jax.Array) -> Any:
-        from qdrl.qd.emitters.me_pbt import agent_policy_network, to_genotype
+        from qdrl.qd.emitters.me_pbt import to_genotype
         from qdrl.qd.map_elites import MapElites
         from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
         from qdrl.qd.repertoires.cvt import cvt_centroids
@@ -234,9 +234,16 @@ class MEPBTRun(QDRun):
                 num_iters=rc.kmeans_iters,
             )
             repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
-        assert task.policy_scoring is not None
-        scoring = task.policy_scoring(agent_policy_network(self.agent))
-        return MapElites(scoring, self.emitter, repertoire, qd_offset=task.qd_offset)
+        return MapElites(self.scoring(), self.emitter, repertoire, qd_offset=task.qd_offset)
+
+    def scoring(self, fixed_start: bool = True, record: Any = None) -> Any:
+        """The task's scoring function of this run's genotypes: whole agents, acting by their policy."""
+        from qdrl.qd.emitters.me_pbt import agent_policy_network
+
+        assert self._task.policy_scoring is not None
+        return self._task.policy_scoring(
+            agent_policy_network(self.agent), fixed_start=fixed_start, record=record
+        )
 
     def init(self, key: jax.Array) -> Any:
         cvt_key, init_key, run_key = jax.random.split(key, 3)
@@ -257,18 +264,8 @@ class MEPBTRun(QDRun):
         return row
 
     def finish(self, state: Any, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
-        from qdrl import plotting
-
-        rep = jax.device_get(state.repertoire)
-        np.savez(
-            out_dir / "repertoire.npz", fitnesses=np.asarray(rep.fitnesses),
-            descriptors=np.asarray(rep.descriptors),
-        )
-        plotting.plot_repertoire(
-            rep, out_dir / "plots" / "repertoire.png", self._task.descriptor_low,
-            self._task.descriptor_high, title=f"{self.algorithm} on {self.task}",
-        )
-        return {"qd_offset": self._task.qd_offset, "population_size": self.me_cfg.population_size}
+        # The repertoire's exports (genotypes: whole agents), plot and re-evaluation.
+        return {**super().finish(state, rows, out_dir), "population_size": self.me_cfg.population_size}
 
 
 @register("me_pbt_sac")

@@ -79,11 +79,18 @@ class QDConfig:
     num_iterations: int = 1000  # emitter batches evaluated after the initial population
     log_every: int = 50  # iterations between log points (one compiled chunk)
     init_batch_size: int = 1024  # random genotypes evaluated to seed the repertoire
+    # At the end, re-score every elite this many times from random start states and
+    # report corrected metrics (Flageat & Cully 2023; `qdrl reevaluate`); 0: off.
+    reevaluate_samples: int = 0
 
     def check(self) -> None:
         for name in ("num_iterations", "log_every", "init_batch_size"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"qd.{name}: expected a positive integer, got {getattr(self, name)}")
+        if self.reevaluate_samples < 0:
+            raise ValueError(
+                f"qd.reevaluate_samples: expected a non-negative integer (0: off), got {self.reevaluate_samples}"
+            )
         if self.num_iterations % self.log_every:
             raise ValueError(
                 f"qd.num_iterations: expected a multiple of qd.log_every={self.log_every}, "
@@ -241,6 +248,22 @@ class QDRun:
         row["added_per_iter"] = float(np.mean(m["added"]))
         return row
 
+    @property
+    def qd_task(self) -> Any:
+        """The run's task (`qdrl.tasks.Task`); `self.task` is its name."""
+        return self._task
+
+    def scoring(self, fixed_start: bool = True, record: Callable[[Any], Any] | None = None) -> Any:
+        """The task's scoring function of this run's genotypes.
+
+        For policy tasks, `fixed_start=False` starts each episode from its own random
+        state and `record` keeps part of each step's env state (`policy_scoring_fn`);
+        other tasks have one scoring function, whatever its key draws.
+        """
+        if self._task.policy_scoring is None:
+            return self._task.scoring_fn
+        return self._task.policy_scoring(None, fixed_start=fixed_start, record=record)
+
     def finish(self, state: QDState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
         from qdrl import plotting
         from qdrl.qd.repertoires import export_npz, write_csv
@@ -252,7 +275,17 @@ class QDRun:
             rep, out_dir / "plots" / "repertoire.png", self._task.descriptor_low,
             self._task.descriptor_high, title=f"{self.algorithm} on {self.task}",
         )
-        return {"qd_offset": self._task.qd_offset}
+        return {"qd_offset": self._task.qd_offset, **self._reevaluate(rep, out_dir)}
+
+    def _reevaluate(self, repertoire: Any, out_dir: Path) -> dict[str, Any]:
+        """`qd.reevaluate_samples` > 0: corrected metrics into reevaluation.json and the summary."""
+        n = self.qd_cfg.reevaluate_samples
+        if n == 0:
+            return {}
+        from qdrl.runs import write_reevaluation
+
+        report = write_reevaluation(self, repertoire, out_dir, n, self.seed)
+        return {f"corrected_{k}": v for k, v in report["corrected"].items()} | {"reevaluate_samples": n}
 
 
 @register("map_elites")
