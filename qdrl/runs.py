@@ -192,42 +192,29 @@ class LoadedRun:
             self._repertoire = jax.device_get(rep if rep is not None else self._from_checkpoint())
         return self._repertoire
 
-    def _template(self) -> Any:
-        """The run's initial state, abstract (`jax.eval_shape`: traced, not compiled)."""
-        return jax.eval_shape(self.run.init, jax.random.PRNGKey(self.seed))
-
     def _from_npz(self, path: Path) -> Any:
         """The repertoire of `repertoire.npz`, or None if the file holds no genotypes."""
-        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
-
+        run = self._qd_run("repertoire")
         with np.load(path) as f:
             arrays = {k: f[k] for k in f.files}
-        template = self._template().repertoire
-        named = jax.tree_util.tree_flatten_with_path(template.genotypes)[0]
+        if not {"centroids", "fitnesses", "descriptors"} <= set(arrays):
+            raise RunError(f"{path}: expected the export of a cell repertoire (centroids, fitnesses, descriptors)")
+        empty = run.empty_repertoire(centroids=arrays["centroids"])
+        named = jax.tree_util.tree_flatten_with_path(empty.genotypes)[0]
         names = ["genotypes" + jax.tree_util.keystr(p) for p, _ in named]
         if not all(n in arrays for n in names):
-            return None  # an export without genotypes (older ME-PBT runs): use the checkpoint
-        example = jax.tree.map(lambda s: np.zeros(s.shape[1:], s.dtype), template.genotypes)
-        if template.grid_shape is not None:
-            rep = grid_repertoire(example, template.grid_shape, template.low, template.high)
-        elif template.lookup_table is not None:
-            task = self._qd_run("repertoire").qd_task
-            rep = cvt_repertoire(example, arrays["centroids"], task.descriptor_low, task.descriptor_high)
-        else:
-            rep = cvt_repertoire(example, arrays["centroids"])
-        leaves = [np.asarray(arrays[n]) for n in names]
+            return None  # an export without genotypes (ME-PBT before they were exported)
         rep = dataclasses.replace(
-            rep,
-            genotypes=jax.tree_util.tree_unflatten(jax.tree.structure(template.genotypes), leaves),
+            empty,
+            genotypes=jax.tree_util.tree_unflatten(
+                jax.tree.structure(empty.genotypes), [arrays[n] for n in names]
+            ),
             fitnesses=arrays["fitnesses"],
             descriptors=arrays["descriptors"],
         )
-        got = [(tuple(np.shape(x)), np.dtype(x.dtype)) for x in jax.tree.leaves(rep)]
-        want = [(tuple(s.shape), np.dtype(s.dtype)) for s in jax.tree.leaves(template)]
-        # Any: mypy cannot resolve jaxlib's PyTreeDef type and rejects comparing it.
-        structure: Any = jax.tree.structure(rep)
-        if structure != jax.tree.structure(template) or got != want or not np.array_equal(
-            np.asarray(rep.centroids), arrays["centroids"]
+        shapes = [np.shape(x) for x in jax.tree.leaves(rep)]
+        if shapes != [np.shape(x) for x in jax.tree.leaves(empty)] or not np.array_equal(
+            np.asarray(empty.centroids), arrays["centroids"]
         ):
             raise RunError(f"{path}: expected the repertoire of the run in config.toml; its cells or shapes differ")
         return rep
@@ -239,8 +226,11 @@ class LoadedRun:
                 f"{self.path} holds no repertoire yet: expected repertoire.npz (a finished run) or a "
                 "checkpoint in checkpoints/ (an interrupted run)"
             )
+        run, key = self.run, jax.random.PRNGKey(self.seed)
+        # QD runs compute their cells (CVT: k-means, as `init` does); nothing is evaluated.
+        template = run.state_template(key) if hasattr(run, "state_template") else jax.eval_shape(run.init, key)
         try:
-            state, _ = checkpoint.restore(latest, self._template())
+            state, _ = checkpoint.restore(latest, template)
         except ValueError as e:
             raise RunError(f"{latest}: expected a checkpoint of the run in config.toml; {e}") from e
         for name in ("repertoire", "archive"):

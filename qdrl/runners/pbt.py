@@ -217,24 +217,19 @@ class MEPBTRun(QDRun):
             raise ConfigError(msg if msg.startswith(("me_pbt.", "pbt.", "train.")) else f"me_pbt: {msg}") from e
         self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg)
 
-    def _build(self, key: jax.Array) -> Any:
-        from qdrl.qd.emitters.me_pbt import to_genotype
-        from qdrl.qd.map_elites import MapElites
-        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
-        from qdrl.qd.repertoires.cvt import cvt_centroids
+    def _emitter(self, make_ga: Any) -> Any:
+        del make_ga  # ME-PBT's GA is part of its emitter ([me_pbt])
+        return self.emitter
 
-        task, rc = self._task, self.rep_cfg
+    def example_genotype(self) -> Any:
+        """One genotype of the repertoire: a whole agent (`to_genotype` of its state), zeros."""
+        from qdrl.qd.emitters.me_pbt import to_genotype
+
         example = to_genotype(jax.eval_shape(self.agent.init, jax.random.PRNGKey(0)))
-        example = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), example)
-        if rc.kind == "grid":
-            repertoire = grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
-        else:
-            centroids = cvt_centroids(
-                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
-                num_iters=rc.kmeans_iters,
-            )
-            repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
-        return MapElites(self.scoring(), self.emitter, repertoire, qd_offset=task.qd_offset)
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), example)
+
+    def _initial_genotypes(self, key: jax.Array, n: int) -> Any:
+        return self.emitter.init_genotypes(key, n)
 
     def scoring(self, fixed_start: bool = True, record: Any = None) -> Any:
         """The task's scoring function of this run's genotypes: whole agents, acting by their policy."""
@@ -244,16 +239,6 @@ class MEPBTRun(QDRun):
         return self._task.policy_scoring(
             agent_policy_network(self.agent), fixed_start=fixed_start, record=record
         )
-
-    def init(self, key: jax.Array) -> Any:
-        cvt_key, init_key, run_key = jax.random.split(key, 3)
-        self.map_elites = self._build(cvt_key)
-        me = self.map_elites
-
-        def start(k1: jax.Array, k2: jax.Array) -> Any:
-            return me.init(self.emitter.init_genotypes(k1, self.qd_cfg.init_batch_size), k2)
-
-        return jax.jit(start)(init_key, run_key)
 
     def log_row(self, state: Any, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row = super().log_row(state, chunk_metrics, chunk)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import time
 import typing
@@ -181,22 +182,13 @@ class QDRun:
     def _build(self, key: jax.Array) -> MapElites:
         from qdrl.qd.emitters.ga import isoline_emitter, polynomial_emitter
         from qdrl.qd.map_elites import MapElites
-        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
-        from qdrl.qd.repertoires.cvt import cvt_centroids
 
-        task, rc, ec = self._task, self.rep_cfg, self.emitter_cfg
+        task, ec = self._task, self.emitter_cfg
         # Unbounded genotypes (policy parameters) are not clipped.
         lo = task.genotype_low if np.isfinite(task.genotype_low) else None
         hi = task.genotype_high if np.isfinite(task.genotype_high) else None
-        example = task.example_genotype()
-        if rc.kind == "grid":
-            repertoire = grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
-        else:
-            centroids = cvt_centroids(
-                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
-                num_iters=rc.kmeans_iters,
-            )
-            repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+        repertoire = self.empty_repertoire(key)
+
         def make_ga(batch_size: int) -> Emitter:
             if ec.kind == "isoline":
                 return isoline_emitter(
@@ -209,22 +201,55 @@ class QDRun:
                 proportion_var_to_change=ec.crossover_proportion,
             )
 
-        return MapElites(task.scoring_fn, self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
+        return MapElites(self.scoring(), self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         """The run's emitter; `make_ga(n)` is the GA emitter of the `[emitter]` section with n offspring."""
         return make_ga(self.emitter_cfg.batch_size)
 
+    def empty_repertoire(self, key: jax.Array | None = None, centroids: Any = None) -> Any:
+        """The run's empty repertoire (`[repertoire]`); a CVT's cells are `centroids`, or
+        come from k-means seeded by `key` (what `init` does)."""
+        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
+        from qdrl.qd.repertoires.cvt import cvt_centroids
+
+        task, rc, example = self._task, self.rep_cfg, self.example_genotype()
+        if rc.kind == "grid":
+            return grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
+        if centroids is None:
+            if key is None:
+                raise ValueError("empty_repertoire: a CVT repertoire needs a key or centroids")
+            centroids = cvt_centroids(
+                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
+                num_iters=rc.kmeans_iters,
+            )
+        return cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+
+    def example_genotype(self) -> Any:
+        """One genotype of the run's repertoire (no batch axis, zeros): the task's."""
+        return self._task.example_genotype()
+
+    def _initial_genotypes(self, key: jax.Array, n: int) -> Any:
+        return self._task.init_genotypes(key, n)
+
     def init(self, key: jax.Array) -> QDState:
+        return self._init(key, jax.jit)
+
+    def state_template(self, key: jax.Array) -> QDState:
+        """`init(key)`'s state as shapes and dtypes (`jax.eval_shape`): the template of the
+        run's checkpoints. The repertoire's cells are computed (CVT: k-means); nothing is
+        evaluated or compiled."""
+        return self._init(key, lambda start: functools.partial(jax.eval_shape, start))
+
+    def _init(self, key: jax.Array, stage: Callable[[Callable[..., QDState]], Callable[..., Any]]) -> Any:
         cvt_key, init_key, run_key = jax.random.split(key, 3)
         self.map_elites = self._build(cvt_key)
         me = self.map_elites
 
         def start(k1: jax.Array, k2: jax.Array) -> QDState:
-            genotypes = self._task.init_genotypes(k1, self.qd_cfg.init_batch_size)
-            return me.init(genotypes, k2)
+            return me.init(self._initial_genotypes(k1, self.qd_cfg.init_batch_size), k2)
 
-        return jax.jit(start)(init_key, run_key)
+        return stage(start)(init_key, run_key)
 
     def compile(self, state: QDState) -> float:
         assert self.map_elites is not None
@@ -254,13 +279,13 @@ class QDRun:
         return self._task
 
     def scoring(self, fixed_start: bool = True, record: Callable[[Any], Any] | None = None) -> Any:
-        """The task's scoring function of this run's genotypes.
+        """The task's scoring function of this run's genotypes (by default, the run's own).
 
         For policy tasks, `fixed_start=False` starts each episode from its own random
         state and `record` keeps part of each step's env state (`policy_scoring_fn`);
         other tasks have one scoring function, whatever its key draws.
         """
-        if self._task.policy_scoring is None:
+        if self._task.policy_scoring is None or (fixed_start and record is None):
             return self._task.scoring_fn
         return self._task.policy_scoring(None, fixed_start=fixed_start, record=record)
 
