@@ -35,9 +35,7 @@ def _kind(run: LoadedRun) -> tuple[str, tuple[str, ...]]:
     from qdrl.envs.brax import WALLED_ENVS, BraxEnv
     from qdrl.envs.point_maze import PointMazeEnv
 
-    if not run.is_qd:
-        raise RunError(f"render: expected a QD run of a brax task or point_maze, got a {run.algorithm} run")
-    env = run.qd_task.env
+    env = run.require_qd("render").qd_task.env
     if isinstance(env, PointMazeEnv):
         return "point_maze", (".png",)
     if isinstance(env, BraxEnv):
@@ -129,7 +127,11 @@ def write_path_png(
     from matplotlib.patches import Polygon, Rectangle
 
     xy = np.asarray(episode.state_descriptors)[: episode.length + 1, :2]
-    fig = Figure(figsize=(5.5, 5.0), layout="constrained")
+    lo = np.minimum(np.asarray(low, float)[:2], xy.min(axis=0))
+    hi = np.maximum(np.asarray(high, float)[:2], xy.max(axis=0))
+    pad = 0.03 * (hi - lo)
+    aspect = float(np.clip((hi[1] - lo[1]) / (hi[0] - lo[0]), 0.4, 1.5))
+    fig = Figure(figsize=(6.0, 1.0 + 5.0 * aspect), layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     for wall in walls:
@@ -143,9 +145,6 @@ def write_path_png(
     ax.plot(xy[:, 0], xy[:, 1], color="tab:blue", linewidth=1.5, label="path")
     ax.plot(*xy[0], "o", color="tab:green", label="start")
     ax.plot(*xy[-1], "X", color="tab:blue", markersize=9, label="end")
-    lo = np.minimum(np.asarray(low, float)[:2], xy.min(axis=0))
-    hi = np.maximum(np.asarray(high, float)[:2], xy.max(axis=0))
-    pad = 0.03 * (hi - lo)
     ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
     ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
     ax.set_aspect("equal")

@@ -157,9 +157,10 @@ class LoadedRun:
     @property
     def qd_task(self) -> Any:
         """The task of a QD run (`qdrl.tasks.Task`); RunError for other runs."""
-        return self._qd_run("qd_task").qd_task
+        return self.require_qd("qd_task").qd_task
 
-    def _qd_run(self, what: str) -> QDRun:
+    def require_qd(self, what: str) -> QDRun:
+        """The rebuilt QD run; RunError, saying `what` needed it, for other runs."""
         from qdrl.runners.qd import QDRun
 
         run = self.run
@@ -183,18 +184,16 @@ class LoadedRun:
         skill runs: their passive archive (genotypes None).
         """
         if self._repertoire is None:
-            from qdrl.runners.qd import QDRun
-
             npz = self.path / "repertoire.npz"
             rep = None
-            if isinstance(self.run, QDRun) and npz.is_file():
+            if self.is_qd and npz.is_file():
                 rep = self._from_npz(npz)
             self._repertoire = jax.device_get(rep if rep is not None else self._from_checkpoint())
         return self._repertoire
 
     def _from_npz(self, path: Path) -> Any:
         """The repertoire of `repertoire.npz`, or None if the file holds no genotypes."""
-        run = self._qd_run("repertoire")
+        run = self.require_qd("repertoire")
         with np.load(path) as f:
             arrays = {k: f[k] for k in f.files}
         if not {"centroids", "fitnesses", "descriptors"} <= set(arrays):
@@ -291,7 +290,7 @@ class LoadedRun:
         each step, as in `qdrl.rollout.unroll_recorded`) fills `states`; brax tasks
         keep the link poses by default (`brax_link_poses`), enough to render.
         """
-        run = self._qd_run("rollout")
+        run = self.require_qd("rollout")
         task = run.qd_task
         if task.env is None or task.policy_scoring is None:
             raise RunError(
@@ -327,7 +326,7 @@ class LoadedRun:
         """
         if samples < 1:
             raise RunError(f"samples: expected a positive integer, got {samples}")
-        run = self._qd_run("reevaluate")
+        run = self.require_qd("reevaluate")
         seed = self.seed if seed is None else seed
         if write:
             return write_reevaluation(run, self.repertoire, self.path, samples, seed)
