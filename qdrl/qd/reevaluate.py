@@ -117,11 +117,6 @@ def corrected_repertoire(
     return corrected, fitness, descriptor, result.cell
 
 
-def _host_metrics(repertoire: Any, qd_offset: float) -> dict[str, float]:
-    m = jax.device_get(qd_metrics(repertoire, qd_offset))
-    return {k: float(np.asarray(v)) for k, v in m.items()}
-
-
 def reevaluate(
     repertoire: CellRepertoire,
     scoring_fn: ScoringFn,
@@ -143,16 +138,18 @@ def reevaluate(
 
     @jax.jit
     def correct(rep: CellRepertoire, genotypes: Genotype, key: PRNGKey) -> Any:
-        fitnesses, descriptors = sample_scores(scoring_fn, genotypes, key, num_samples)
-        out = corrected_repertoire(rep, genotypes, fitnesses, descriptors)
-        return (fitnesses, descriptors, *out)
+        if len(cells):
+            fitnesses, descriptors = sample_scores(scoring_fn, genotypes, key, num_samples)
+            out = corrected_repertoire(rep, genotypes, fitnesses, descriptors)
+        else:  # nothing to re-score
+            dim = rep.descriptors.shape[-1]
+            fitnesses, descriptors = jnp.zeros((num_samples, 0)), jnp.zeros((num_samples, 0, dim))
+            out = (emptied(rep), jnp.zeros(0), jnp.zeros((0, dim)), jnp.zeros(0, jnp.int32))
+        return fitnesses, descriptors, *out, qd_metrics(rep, qd_offset), qd_metrics(out[0], qd_offset)
 
-    if len(cells):
-        fit_s, desc_s, corrected, fit, desc, new_cells = correct(repertoire, genotypes, key)
-    else:
-        dim = int(repertoire.descriptors.shape[-1])
-        fit_s, desc_s = np.zeros((num_samples, 0)), np.zeros((num_samples, 0, dim))
-        corrected, fit, desc, new_cells = emptied(repertoire), np.zeros(0), np.zeros((0, dim)), np.zeros(0)
+    fit_s, desc_s, corrected, fit, desc, new_cells, stored_m, corrected_m = jax.device_get(
+        correct(repertoire, genotypes, key)
+    )
     return Reevaluation(
         cells=cells,
         fitness_samples=np.asarray(fit_s),
@@ -160,9 +157,9 @@ def reevaluate(
         median_fitness=np.asarray(fit),
         median_descriptor=np.asarray(desc),
         corrected_cells=np.asarray(new_cells, np.int64),
-        corrected=jax.device_get(corrected),
-        stored_metrics=_host_metrics(repertoire, qd_offset),
-        corrected_metrics=_host_metrics(corrected, qd_offset),
+        corrected=corrected,
+        stored_metrics={k: float(v) for k, v in stored_m.items()},
+        corrected_metrics={k: float(v) for k, v in corrected_m.items()},
     )
 
 

@@ -9,8 +9,8 @@ import pytest
 
 from qdrl.qd.base import Evaluation
 from qdrl.qd.reevaluate import corrected_repertoire, reevaluate, report
-from qdrl.qd.repertoires import grid_repertoire
-from qdrl.tasks import arm, noisy_arm
+from qdrl.qd.repertoires import CellRepertoire, grid_repertoire
+from qdrl.tasks import Task, arm, noisy_arm
 
 
 def test_medians_move_elites_and_the_best_keeps_a_shared_cell() -> None:
@@ -41,11 +41,17 @@ def test_medians_move_elites_and_the_best_keeps_a_shared_cell() -> None:
     np.testing.assert_array_equal(corrected.genotypes[:, 0], [10.0, 0.0, 0.0, 20.0])
 
 
-def _filled_repertoire(task, n: int, key: jax.Array):  # type: ignore[no-untyped-def]
-    genotypes = task.init_genotypes(key, n)
-    ev = task.scoring_fn(genotypes, jax.random.fold_in(key, 1))
+def _filled_repertoire(task: Task, n: int, key: jax.Array) -> CellRepertoire:
+    """An 8 x 8 grid filled with the best of n random genotypes, each evaluated once."""
     empty = grid_repertoire(task.example_genotype(), (8, 8), task.descriptor_low, task.descriptor_high)
-    return empty.add(genotypes, ev.descriptors, ev.fitnesses)[0]
+
+    @jax.jit
+    def fill(key: jax.Array) -> CellRepertoire:
+        genotypes = task.init_genotypes(key, n)
+        ev = task.scoring_fn(genotypes, jax.random.fold_in(key, 1))
+        return empty.add(genotypes, ev.descriptors, ev.fitnesses)[0]
+
+    return fill(key)
 
 
 def test_deterministic_task_corrected_equals_stored() -> None:
