@@ -1,3 +1,20 @@
 """qdrl: reinforcement learning and Quality-Diversity in JAX."""
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from qdrl.runs import load_run
+
 __version__ = "0.1.0"
+__all__ = ["__version__", "load_run"]
+
+
+def __getattr__(name: str) -> Any:
+    # `import qdrl` stays cheap: jax and pandas load on first use of `qdrl.load_run`.
+    if name == "load_run":
+        from qdrl.runs import load_run
+
+        return load_run
+    raise AttributeError(f"module 'qdrl' has no attribute {name!r}")

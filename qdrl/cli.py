@@ -1,4 +1,4 @@
-"""The `qdrl` command: run experiment specs, list what exists, benchmark."""
+"""The `qdrl` command: run experiment specs, list what exists, benchmark, replay and re-score runs."""
 
 from __future__ import annotations
 
@@ -137,6 +137,36 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_render(args: argparse.Namespace) -> int:
+    from qdrl.render import render
+    from qdrl.runs import RunError, load_run
+
+    try:
+        with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
+            result = render(load_run(args.dir), args.cell, args.out)
+    except RunError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def _cmd_reevaluate(args: argparse.Namespace) -> int:
+    from qdrl.runs import RunError, load_run
+
+    if args.samples < 1:
+        print(f"qdrl: error: --samples: expected a positive integer, got {args.samples}", file=sys.stderr)
+        return 2
+    try:
+        with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
+            report = load_run(args.dir).reevaluate(args.samples, args.seed)
+    except RunError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(report, indent=2))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `qdrl` console script."""
     parser = argparse.ArgumentParser(prog="qdrl", description=__doc__)
@@ -175,6 +205,25 @@ def main(argv: list[str] | None = None) -> int:
         help="only one case: rl -> sac|td3; map_elites -> cvt1024|grid32|grid100; tasks -> a task name",
     )
     p_bench.set_defaults(fn=_cmd_bench)
+
+    p_render = sub.add_parser(
+        "render", help="replay an elite of a run: HTML viewer (brax) or PNG of its path (mazes)"
+    )
+    p_render.add_argument("dir", help="a run directory written by `qdrl run`")
+    p_render.add_argument("--cell", type=int, default=None, help="the elite's cell (default: the best)")
+    p_render.add_argument(
+        "--out", default=None, help="output file, .html or .png (default: DIR/plots/replay_cell<N>.html|png)"
+    )
+    p_render.set_defaults(fn=_cmd_render)
+
+    p_reeval = sub.add_parser(
+        "reevaluate",
+        help="re-score every elite N times from random start states; corrected QD metrics as JSON",
+    )
+    p_reeval.add_argument("dir", help="a QD run directory written by `qdrl run`")
+    p_reeval.add_argument("--samples", type=int, required=True, metavar="N", help="evaluations per elite")
+    p_reeval.add_argument("--seed", type=int, default=None, help="seeds the re-evaluations (default: the run's)")
+    p_reeval.set_defaults(fn=_cmd_reevaluate)
 
     args = parser.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else argv

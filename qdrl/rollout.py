@@ -8,7 +8,7 @@ differ only by the policy function and by `auto_reset`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +18,8 @@ from qdrl.types import Array, PRNGKey, Transition
 
 # obs batch (B, obs_size), key -> action batch (B, action_size)
 PolicyFn = Callable[[Array, PRNGKey], Array]
+# batched env state after a step -> what is kept of it (leaves keep the batch axis first)
+RecordFn = Callable[[EnvState], Any]
 
 
 def env_step(
@@ -28,6 +30,14 @@ def env_step(
     The transition keeps the true next observation of a finished episode: the
     reset happens after it is recorded.
     """
+    next_state, transition = _act(env, state, policy, key)
+    if reset:
+        next_state = auto_reset(env, next_state)
+    return next_state, transition
+
+
+def _act(env: Env, state: EnvState, policy: PolicyFn, key: PRNGKey) -> tuple[EnvState, Transition]:
+    """One step of the batch under `policy` (no reset) and its transition."""
     action = policy(state.obs, key)
     next_state = step_batch(env, state, action)
     transition = Transition(
@@ -40,8 +50,6 @@ def env_step(
         desc=state.desc,
         next_desc=next_state.desc,
     )
-    if reset:
-        next_state = auto_reset(env, next_state)
     return next_state, transition
 
 
@@ -54,11 +62,38 @@ def unroll(
     reset: bool = True,
 ) -> tuple[EnvState, Transition]:
     """`num_steps` steps of `env_step` in a `lax.scan`; transitions are stacked (T, B, ...)."""
+    final, transitions, _ = unroll_recorded(env, state, policy, key, num_steps, _nothing, reset)
+    return final, transitions
 
-    def body(s: EnvState, k: PRNGKey) -> tuple[EnvState, Transition]:
-        return env_step(env, s, policy, k, reset)
 
-    return jax.lax.scan(body, state, jax.random.split(key, num_steps))
+def _nothing(state: EnvState) -> None:
+    del state
+
+
+def unroll_recorded(
+    env: Env,
+    state: EnvState,
+    policy: PolicyFn,
+    key: PRNGKey,
+    num_steps: int,
+    record: RecordFn,
+    reset: bool = True,
+) -> tuple[EnvState, Transition, Any]:
+    """`unroll`, also stacking `record(state)` of the states after each step (before any reset).
+
+    E.g. `lambda s: s.inner.pipeline_state.x` keeps brax's link poses (what
+    `brax.io.html` draws); the recorded leaves are (T, B, ...).
+    """
+
+    def body(s: EnvState, k: PRNGKey) -> tuple[EnvState, tuple[Transition, Any]]:
+        stepped, transition = _act(env, s, policy, k)
+        kept = record(stepped)
+        if reset:
+            stepped = auto_reset(env, stepped)
+        return stepped, (transition, kept)
+
+    final, (transitions, recorded) = jax.lax.scan(body, state, jax.random.split(key, num_steps))
+    return final, transitions, recorded
 
 
 class Episodes(NamedTuple):
@@ -70,6 +105,7 @@ class Episodes(NamedTuple):
     mean_desc: Array  # (B, D) state descriptor averaged over the episode's steps
     transitions: Transition  # (T, B, ...) every step, valid where `mask` is 1
     mask: Array  # (T, B) 1.0 for steps inside the episode
+    recorded: Any = None  # (T, B, ...) what `run_episodes`'s `record` kept of each step's state
 
 
 def run_episodes(
@@ -79,13 +115,15 @@ def run_episodes(
     num_envs: int,
     num_steps: int | None = None,
     start_key: PRNGKey | None = None,
+    record: RecordFn | None = None,
 ) -> Episodes:
     """Roll out one episode per environment from fresh resets, masking steps after the end.
 
     Episodes last at most `num_steps` (default: the env's episode length). With
     `start_key`, every environment starts from the one initial state that key
     resets to (QDax's deterministic evaluation of policies); otherwise each starts
-    from its own random initial state.
+    from its own random initial state. With `record`, `Episodes.recorded` stacks what
+    it keeps of the batch's state after each step (see `unroll_recorded`).
     """
     num_steps = env.episode_length if num_steps is None else num_steps
     reset_key, run_key = jax.random.split(key)
@@ -93,7 +131,9 @@ def run_episodes(
         state = reset_batch(env, reset_key, num_envs)
     else:
         state = jax.vmap(env.reset)(jnp.broadcast_to(start_key, (num_envs, *start_key.shape)))
-    _, tr = unroll(env, state, policy, run_key, num_steps, reset=False)
+    _, tr, recorded = unroll_recorded(
+        env, state, policy, run_key, num_steps, _nothing if record is None else record, reset=False
+    )
     done = jnp.maximum(tr.terminated, tr.truncated)
     # A step is valid if no earlier step ended the episode.
     ended_before = jnp.cumsum(done, axis=0) - done
@@ -105,4 +145,4 @@ def run_episodes(
     mean_desc = jnp.sum(tr.next_desc * mask[..., None], axis=0) / jnp.maximum(
         lengths[:, None], 1
     )
-    return Episodes(returns, lengths, final_desc, mean_desc, tr, mask)
+    return Episodes(returns, lengths, final_desc, mean_desc, tr, mask, recorded)

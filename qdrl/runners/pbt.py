@@ -219,36 +219,28 @@ class MEPBTRun(QDRun):
         trainer = make_trainer(task.env, self.agent, self.me_cfg.train_config())
         self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg)
 
-    def _build(self, key: jax.Array) -> Any:
-        from qdrl.qd.emitters.me_pbt import agent_policy_network, to_genotype
-        from qdrl.qd.map_elites import MapElites
-        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
-        from qdrl.qd.repertoires.cvt import cvt_centroids
+    def _emitter(self, make_ga: Any) -> Any:
+        del make_ga  # ME-PBT's GA is part of its emitter ([me_pbt])
+        return self.emitter
 
-        task, rc = self._task, self.rep_cfg
+    def example_genotype(self) -> Any:
+        """One genotype of the repertoire: a whole agent (`to_genotype` of its state), zeros."""
+        from qdrl.qd.emitters.me_pbt import to_genotype
+
         example = to_genotype(jax.eval_shape(self.agent.init, jax.random.PRNGKey(0)))
-        example = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), example)
-        if rc.kind == "grid":
-            repertoire = grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
-        else:
-            centroids = cvt_centroids(
-                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
-                num_iters=rc.kmeans_iters,
-            )
-            repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
-        assert task.policy_scoring is not None
-        scoring = task.policy_scoring(agent_policy_network(self.agent))
-        return MapElites(scoring, self.emitter, repertoire, qd_offset=task.qd_offset)
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), example)
 
-    def init(self, key: jax.Array) -> Any:
-        cvt_key, init_key, run_key = jax.random.split(key, 3)
-        self.map_elites = self._build(cvt_key)
-        me = self.map_elites
+    def _initial_genotypes(self, key: jax.Array, n: int) -> Any:
+        return self.emitter.init_genotypes(key, n)
 
-        def start(k1: jax.Array, k2: jax.Array) -> Any:
-            return me.init(self.emitter.init_genotypes(k1, self.qd_cfg.init_batch_size), k2)
+    def scoring(self, fixed_start: bool = True, record: Any = None) -> Any:
+        """The task's scoring function of this run's genotypes: whole agents, acting by their policy."""
+        from qdrl.qd.emitters.me_pbt import agent_policy_network
 
-        return jax.jit(start)(init_key, run_key)
+        assert self._task.policy_scoring is not None
+        return self._task.policy_scoring(
+            agent_policy_network(self.agent), fixed_start=fixed_start, record=record
+        )
 
     def log_row(self, state: Any, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row = super().log_row(state, chunk_metrics, chunk)
@@ -259,18 +251,8 @@ class MEPBTRun(QDRun):
         return row
 
     def finish(self, state: Any, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
-        from qdrl import plotting
-
-        rep = jax.device_get(state.repertoire)
-        np.savez(
-            out_dir / "repertoire.npz", fitnesses=np.asarray(rep.fitnesses),
-            descriptors=np.asarray(rep.descriptors),
-        )
-        plotting.plot_repertoire(
-            rep, out_dir / "plots" / "repertoire.png", self._task.descriptor_low,
-            self._task.descriptor_high, title=f"{self.algorithm} on {self.task}",
-        )
-        return {"qd_offset": self._task.qd_offset, "population_size": self.me_cfg.population_size}
+        # The repertoire's exports (genotypes: whole agents), plot and re-evaluation.
+        return {**super().finish(state, rows, out_dir), "population_size": self.me_cfg.population_size}
 
 
 def parse_me_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> Sections:

@@ -76,6 +76,9 @@ class QDConfig:
     num_iterations: PositiveInt = 1000  # emitter batches evaluated after the initial population
     log_every: PositiveInt = 50  # iterations between log points (one compiled chunk)
     init_batch_size: PositiveInt = 1024  # random genotypes evaluated to seed the repertoire
+    # At the end, re-score every elite this many times from random start states and
+    # report corrected metrics (Flageat & Cully 2023; `qdrl reevaluate`); 0: off.
+    reevaluate_samples: NonNegativeInt = 0
 
     def check(self) -> None:
         if self.num_iterations % self.log_every:
@@ -185,22 +188,13 @@ class QDRun:
     def _build(self, key: jax.Array) -> MapElites:
         from qdrl.qd.emitters.ga import isoline_emitter, polynomial_emitter
         from qdrl.qd.map_elites import MapElites
-        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
-        from qdrl.qd.repertoires.cvt import cvt_centroids
 
-        task, rc, ec = self._task, self.rep_cfg, self.emitter_cfg
+        task, ec = self._task, self.emitter_cfg
         # Unbounded genotypes (policy parameters) are not clipped.
         lo = task.genotype_low if np.isfinite(task.genotype_low) else None
         hi = task.genotype_high if np.isfinite(task.genotype_high) else None
-        example = task.example_genotype()
-        if rc.kind == "grid":
-            repertoire = grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
-        else:
-            centroids = cvt_centroids(
-                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
-                num_iters=rc.kmeans_iters,
-            )
-            repertoire = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+        repertoire = self.empty_repertoire(key)
+
         def make_ga(batch_size: int) -> Emitter:
             assert ec is not None, "a run without [emitter] builds no GA"
             if ec.kind == "isoline":
@@ -214,7 +208,7 @@ class QDRun:
                 proportion_var_to_change=ec.crossover_proportion,
             )
 
-        return MapElites(task.scoring_fn, self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
+        return MapElites(self.scoring(), self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
         """The run's emitter; `make_ga(n)` is the GA emitter of the `[emitter]` section with n offspring."""
@@ -226,16 +220,49 @@ class QDRun:
         assert self.emitter_cfg is not None
         return self.emitter_cfg.batch_size
 
+    def empty_repertoire(self, key: jax.Array | None = None, centroids: Any = None) -> Any:
+        """The run's empty repertoire (`[repertoire]`); a CVT's cells are `centroids`, or
+        come from k-means seeded by `key` (what `init` does)."""
+        from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
+        from qdrl.qd.repertoires.cvt import cvt_centroids
+
+        task, rc, example = self._task, self.rep_cfg, self.example_genotype()
+        if rc.kind == "grid":
+            return grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
+        if centroids is None:
+            if key is None:
+                raise ValueError("empty_repertoire: a CVT repertoire needs a key or centroids")
+            centroids = cvt_centroids(
+                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
+                num_iters=rc.kmeans_iters,
+            )
+        return cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+
+    def example_genotype(self) -> Any:
+        """One genotype of the run's repertoire (no batch axis, zeros): the task's."""
+        return self._task.example_genotype()
+
+    def _initial_genotypes(self, key: jax.Array, n: int) -> Any:
+        return self._task.init_genotypes(key, n)
+
     def init(self, key: jax.Array) -> QDState:
+        return self._init(key, jax.jit)
+
+    def state_template(self, key: jax.Array) -> QDState:
+        """`init(key)`'s state as shapes and dtypes (`jax.eval_shape`): the template of the
+        run's checkpoints. The repertoire's cells are computed (CVT: k-means); nothing is
+        evaluated or compiled."""
+        return self._init(key, lambda start: functools.partial(jax.eval_shape, start))
+
+    def _init(self, key: jax.Array, stage: Callable[[Callable[..., QDState]], Callable[..., Any]]) -> Any:
         cvt_key, init_key, run_key = jax.random.split(key, 3)
         self.map_elites = self._build(cvt_key)
         me = self.map_elites
 
         def start(k1: jax.Array, k2: jax.Array) -> QDState:
-            genotypes = self._task.init_genotypes(k1, self.qd_cfg.init_batch_size)
-            return me.init(genotypes, k2)
+            return me.init(self._initial_genotypes(k1, self.qd_cfg.init_batch_size), k2)
 
-        return jax.jit(start)(init_key, run_key)
+        return stage(start)(init_key, run_key)
 
     def compile(self, state: QDState) -> float:
         assert self.map_elites is not None
@@ -259,6 +286,22 @@ class QDRun:
         row["added_per_iter"] = float(np.mean(m["added"]))
         return row
 
+    @property
+    def qd_task(self) -> Any:
+        """The run's task (`qdrl.tasks.Task`); `self.task` is its name."""
+        return self._task
+
+    def scoring(self, fixed_start: bool = True, record: Callable[[Any], Any] | None = None) -> Any:
+        """The task's scoring function of this run's genotypes (by default, the run's own).
+
+        For policy tasks, `fixed_start=False` starts each episode from its own random
+        state and `record` keeps part of each step's env state (`policy_scoring_fn`);
+        other tasks have one scoring function, whatever its key draws.
+        """
+        if self._task.policy_scoring is None or (fixed_start and record is None):
+            return self._task.scoring_fn
+        return self._task.policy_scoring(None, fixed_start=fixed_start, record=record)
+
     def finish(self, state: QDState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
         from qdrl import plotting
         from qdrl.qd.repertoires import export_npz, write_csv
@@ -270,7 +313,17 @@ class QDRun:
             rep, out_dir / "plots" / "repertoire.png", self._task.descriptor_low,
             self._task.descriptor_high, title=f"{self.algorithm} on {self.task}",
         )
-        return {"qd_offset": self._task.qd_offset}
+        return {"qd_offset": self._task.qd_offset, **self._reevaluate(rep, out_dir)}
+
+    def _reevaluate(self, repertoire: Any, out_dir: Path) -> dict[str, Any]:
+        """`qd.reevaluate_samples` > 0: corrected metrics into reevaluation.json and the summary."""
+        n = self.qd_cfg.reevaluate_samples
+        if n == 0:
+            return {}
+        from qdrl.runs import write_reevaluation
+
+        report = write_reevaluation(self, repertoire, out_dir, n, self.seed)
+        return {f"corrected_{k}": v for k, v in report["corrected"].items()} | {"reevaluate_samples": n}
 
 
 register("map_elites", functools.partial(parse_qd, default_kind="grid"), QDRun)

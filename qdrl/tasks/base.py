@@ -28,7 +28,9 @@ class Task:
     vectors; `genotype_size` then counts its scalars.
     Policy tasks also give their environment (`env`), `policy_scoring(network)`:
     the task's scoring function for genotypes of another policy (anything with
-    `apply(genotype, obs) -> action`), e.g. whole RL agents in ME-PBT, and
+    `apply(genotype, obs) -> action`), e.g. whole RL agents in ME-PBT (None: the
+    task's own policy; keywords `fixed_start` and `record` as in
+    `qdrl.tasks.policy.policy_scoring_fn`, e.g. for random-start re-evaluations), and
     `episode_descriptor`: how an episode's descriptor is read from its state
     descriptors ("final" or "mean"), so that RL runs fill the same archive.
     """
@@ -45,7 +47,7 @@ class Task:
     init_fn: Callable[[PRNGKey, int], Any] | None = None
     genotype_template: Any = None
     env: Any = None
-    policy_scoring: Callable[[Any], ScoringFn] | None = None
+    policy_scoring: Callable[..., ScoringFn] | None = None
     episode_descriptor: str | None = None
 
     def __post_init__(self) -> None:

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from qdrl import nets
 from qdrl.envs.base import Env
 from qdrl.qd.base import Evaluation, ScoringFn
-from qdrl.rollout import Episodes, run_episodes
+from qdrl.rollout import Episodes, RecordFn, run_episodes
 from qdrl.tasks.base import Task
 from qdrl.types import Genotype, Params, PRNGKey
 
@@ -73,6 +73,7 @@ def policy_scoring_fn(
     descriptor_fn: Callable[[jax.Array], jax.Array] | None = None,
     fixed_start: bool = True,
     eval_batch: int | None = DEFAULT_EVAL_BATCH,
+    record: RecordFn | None = None,
 ) -> ScoringFn:
     """A scoring function of batched policy parameters on `env`.
 
@@ -92,6 +93,9 @@ def policy_scoring_fn(
         so a policy's fitness and descriptor do not depend on the batch it is in.
         Set it to the run's batch size (the runners do) to pay no padding; None
         rolls out any batch at once, with batch-dependent numerics.
+      record: also hand back `extras["recorded"]`, (T, n, ...): what this function of
+        the batched env state keeps after each step (`qdrl.rollout.unroll_recorded`),
+        e.g. brax's link poses to render an episode. The episodes are unchanged.
     """
     if descriptor not in ("final", "mean"):
         raise ValueError(f"descriptor: expected 'final' or 'mean', got {descriptor!r}")
@@ -105,7 +109,7 @@ def policy_scoring_fn(
         def policy(obs: jax.Array, _: PRNGKey) -> jax.Array:
             return jax.vmap(network.apply)(genotypes, obs)
 
-        return run_episodes(env, policy, key, n, num_steps, start_key=start)
+        return run_episodes(env, policy, key, n, num_steps, start_key=start, record=record)
 
     def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
         n = jax.tree.leaves(genotypes)[0].shape[0]
@@ -116,15 +120,18 @@ def policy_scoring_fn(
         desc = episodes.final_desc if descriptor == "final" else episodes.mean_desc
         if descriptor_fn is not None:
             desc = descriptor_fn(desc)
+        extras = {
+            "transitions": episodes.transitions,
+            "mask": episodes.mask,
+            "descriptors": desc.astype(jnp.float32),
+        }
+        if record is not None:
+            extras["recorded"] = episodes.recorded
         # A policy whose rollout blew up (NaN return) is rejected by the repertoire.
         return Evaluation(
             fitnesses=episodes.returns.astype(jnp.float32),
             descriptors=desc.astype(jnp.float32),
-            extras={
-                "transitions": episodes.transitions,
-                "mask": episodes.mask,
-                "descriptors": desc.astype(jnp.float32),
-            },
+            extras=extras,
             env_steps=jnp.sum(episodes.lengths).astype(jnp.int32),
         )
 
@@ -169,6 +176,7 @@ def _in_blocks(
         mean_desc=batch_major(out.mean_desc),
         transitions=jax.tree.map(time_major, out.transitions),
         mask=time_major(out.mask),
+        recorded=jax.tree.map(time_major, out.recorded),
     )
 
 
@@ -210,10 +218,13 @@ def policy_task(
     def clip(desc: jax.Array) -> jax.Array:
         return jnp.clip(desc, low, high)
 
-    def scoring_for(policy: Any) -> ScoringFn:
+    def scoring_for(
+        policy: Any = None, fixed_start: bool = True, record: RecordFn | None = None
+    ) -> ScoringFn:
         return policy_scoring_fn(
-            env, policy, descriptor, descriptor_fn=clip if clip_descriptors else None,
-            eval_batch=eval_batch,
+            env, network if policy is None else policy, descriptor,
+            descriptor_fn=clip if clip_descriptors else None, fixed_start=fixed_start,
+            eval_batch=eval_batch, record=record,
         )
 
     return Task(

@@ -1,0 +1,356 @@
+"""Load a run directory written by `qdrl run`: its config, metrics, summary and repertoire.
+
+    run = qdrl.load_run("runs/map_elites_halfcheetah_uni_cpu")
+    run.metrics.tail()                 # metrics.csv as a pandas DataFrame
+    elite = run.best()                 # or run.elite(cell)
+    episode = run.rollout(elite)       # its episode, through the task's own scoring
+    assert episode.return_ == elite.fitness   # bit for bit
+
+The run is rebuilt from its resolved `config.toml` (no compilation until a rollout
+or a re-evaluation asks for one). The repertoire comes from `repertoire.npz` (a
+finished run) or from the latest checkpoint (an interrupted run), with genotypes
+in the task's own pytree structure. RL, PBT and skill runs load too; their
+passive archive stores no genotypes, which `Elite.genotype` says when asked.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import jax
+import numpy as np
+
+from qdrl import checkpoint
+from qdrl.config import ConfigError, load_toml
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from qdrl.qd.repertoires import CellRepertoire
+    from qdrl.runners.qd import QDRun
+
+__all__ = ["Elite", "LoadedRun", "RunError", "Trajectory", "load_run", "write_reevaluation"]
+
+
+class RunError(ValueError):
+    """A run directory that cannot give what was asked; the message says what was expected."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Elite:
+    """One elite of a repertoire: its cell, stored fitness and descriptor, and genotype."""
+
+    cell: int
+    fitness: float
+    descriptor: np.ndarray  # (D,)
+    stored_genotype: Any = dataclasses.field(default=None, repr=False)
+    # Why `stored_genotype` is None (a passive archive stores none).
+    no_genotype: str = dataclasses.field(default="", repr=False)
+
+    @property
+    def genotype(self) -> Any:
+        """The elite's genotype (the task's pytree, no batch axis); RunError if none is stored."""
+        if self.stored_genotype is None:
+            raise RunError(self.no_genotype or f"cell {self.cell}: no genotype stored")
+        return self.stored_genotype
+
+
+class Trajectory(NamedTuple):
+    """One episode of an elite, as the task's scoring function rolled it out."""
+
+    observations: np.ndarray  # (T, obs_size) before each step
+    actions: np.ndarray  # (T, action_size)
+    rewards: np.ndarray  # (T,)
+    state_descriptors: np.ndarray  # (T + 1, D): at the start, then after each step
+    mask: np.ndarray  # (T,) 1.0 for the steps inside the episode
+    length: int  # steps inside the episode
+    return_: float  # the episode's return: the task's fitness of the elite
+    descriptor: np.ndarray  # (D,) the task's descriptor of the elite
+    states: Any  # (T, ...) what `record` kept of each step's env state (brax: link poses)
+
+
+def brax_link_poses(state: Any) -> Any:
+    """What `brax.io.html` draws of a batched brax env state: the links' poses `pipeline_state.x`."""
+    return state.inner.pipeline_state.x
+
+
+def load_run(path: str | Path) -> LoadedRun:
+    """The run in directory `path` (finished or interrupted); RunError if it is not one."""
+    return LoadedRun(Path(path))
+
+
+class LoadedRun:
+    """A run directory: `config` (dict), `metrics` (DataFrame), `summary` (dict, None if
+    the run did not finish), and on demand its `repertoire`, `table`, elites and rollouts."""
+
+    def __init__(self, path: Path) -> None:
+        import pandas as pd
+
+        if not path.is_dir():
+            raise RunError(f"{path}: no such directory; expected a run directory written by `qdrl run`")
+        if not (path / "config.toml").is_file():
+            raise RunError(
+                f"{path} is not a qdrl run directory: expected config.toml (written by `qdrl run` "
+                "when a run starts)"
+            )
+        try:
+            self.config: dict[str, Any] = load_toml(path / "config.toml")
+        except ConfigError as e:
+            raise RunError(str(e)) from e
+        experiment = self.config.get("experiment")
+        if not isinstance(experiment, dict) or "algorithm" not in experiment:
+            raise RunError(f"{path / 'config.toml'}: expected an [experiment] section with an algorithm")
+        self.path = path
+        self.algorithm = str(experiment["algorithm"])
+        self.seed = int(experiment.get("seed", 0))
+        metrics = path / "metrics.csv"
+        has_rows = metrics.is_file() and metrics.stat().st_size > 0
+        self.metrics: pd.DataFrame = pd.read_csv(metrics) if has_rows else pd.DataFrame()
+        summary = path / "summary.json"
+        self.summary: dict[str, Any] | None = json.loads(summary.read_text()) if summary.is_file() else None
+        self._run: Any = None
+        self._repertoire: Any = None
+        self._rollouts: dict[Any, Callable[..., Any]] = {}
+
+    def __repr__(self) -> str:
+        state = "finished" if self.finished else "interrupted"
+        return f"LoadedRun({str(self.path)!r}, {self.algorithm} on {self.task_name}, {state})"
+
+    @property
+    def finished(self) -> bool:
+        """Whether the run wrote its summary (an interrupted run has none)."""
+        return self.summary is not None
+
+    @property
+    def task_name(self) -> str:
+        """The task (QD runs) or environment (RL runs) of the run."""
+        for section in ("task", "env"):
+            table = self.config.get(section)
+            if isinstance(table, dict) and "name" in table:
+                return str(table["name"])
+        return "?"
+
+    @property
+    def run(self) -> Any:
+        """The run rebuilt from config.toml (`qdrl.experiment.Run`; nothing compiled)."""
+        if self._run is None:
+            from qdrl.experiment import build_run
+
+            try:
+                self._run = build_run(self.config)[0]
+            except ConfigError as e:
+                raise RunError(f"{self.path / 'config.toml'}: {e}") from e
+        return self._run
+
+    @property
+    def is_qd(self) -> bool:
+        """Whether the run is a QD run (its repertoire stores genotypes)."""
+        from qdrl.runners.qd import QDRun
+
+        return isinstance(self.run, QDRun)
+
+    @property
+    def qd_task(self) -> Any:
+        """The task of a QD run (`qdrl.tasks.Task`); RunError for other runs."""
+        return self.require_qd("qd_task").qd_task
+
+    def require_qd(self, what: str) -> QDRun:
+        """The rebuilt QD run; RunError, saying `what` needed it, for other runs."""
+        from qdrl.runners.qd import QDRun
+
+        run = self.run
+        if not isinstance(run, QDRun):
+            raise RunError(f"{what}: expected a QD run whose repertoire stores genotypes; {self._no_genotype()}")
+        return run
+
+    def _no_genotype(self) -> str:
+        return (
+            f"this {self.algorithm} run's passive archive stores no genotypes (only each cell's "
+            "best episode return and descriptor)"
+        )
+
+    # -- the repertoire --
+
+    @property
+    def repertoire(self) -> CellRepertoire:
+        """The final (or, for an interrupted run, the latest checkpointed) repertoire.
+
+        QD runs: genotypes in the task's pytree structure, leaves (C, ...). RL, PBT and
+        skill runs: their passive archive (genotypes None).
+        """
+        if self._repertoire is None:
+            npz = self.path / "repertoire.npz"
+            rep = None
+            if self.is_qd and npz.is_file():
+                rep = self._from_npz(npz)
+            self._repertoire = jax.device_get(rep if rep is not None else self._from_checkpoint())
+        return self._repertoire
+
+    def _from_npz(self, path: Path) -> Any:
+        """The repertoire of `repertoire.npz`, or None if the file holds no genotypes."""
+        run = self.require_qd("repertoire")
+        with np.load(path) as f:
+            arrays = {k: f[k] for k in f.files}
+        if not {"centroids", "fitnesses", "descriptors"} <= set(arrays):
+            raise RunError(f"{path}: expected the export of a cell repertoire (centroids, fitnesses, descriptors)")
+        empty = run.empty_repertoire(centroids=arrays["centroids"])
+        named = jax.tree_util.tree_flatten_with_path(empty.genotypes)[0]
+        names = ["genotypes" + jax.tree_util.keystr(p) for p, _ in named]
+        if not all(n in arrays for n in names):
+            return None  # an export without genotypes (ME-PBT before they were exported)
+        rep = dataclasses.replace(
+            empty,
+            genotypes=jax.tree_util.tree_unflatten(
+                jax.tree.structure(empty.genotypes), [arrays[n] for n in names]
+            ),
+            fitnesses=arrays["fitnesses"],
+            descriptors=arrays["descriptors"],
+        )
+        shapes = [np.shape(x) for x in jax.tree.leaves(rep)]
+        if shapes != [np.shape(x) for x in jax.tree.leaves(empty)] or not np.array_equal(
+            np.asarray(empty.centroids), arrays["centroids"]
+        ):
+            raise RunError(f"{path}: expected the repertoire of the run in config.toml; its cells or shapes differ")
+        return rep
+
+    def _from_checkpoint(self) -> Any:
+        latest = checkpoint.latest(self.path / "checkpoints")
+        if latest is None:
+            raise RunError(
+                f"{self.path} holds no repertoire yet: expected repertoire.npz (a finished run) or a "
+                "checkpoint in checkpoints/ (an interrupted run)"
+            )
+        run, key = self.run, jax.random.PRNGKey(self.seed)
+        # QD runs compute their cells (CVT: k-means, as `init` does); nothing is evaluated.
+        template = run.state_template(key) if hasattr(run, "state_template") else jax.eval_shape(run.init, key)
+        try:
+            state, _ = checkpoint.restore(latest, template)
+        except ValueError as e:
+            raise RunError(f"{latest}: expected a checkpoint of the run in config.toml; {e}") from e
+        for name in ("repertoire", "archive"):
+            if hasattr(state, name):
+                return getattr(state, name)
+        raise RunError(f"{latest}: a {self.algorithm} state holds no repertoire or archive")
+
+    @property
+    def table(self) -> pd.DataFrame:
+        """One row per elite: `cell`, `fitness`, `descriptor_*` and `centroid_*` (cell order)."""
+        import pandas as pd
+
+        from qdrl.qd.repertoires import to_table
+
+        return pd.DataFrame(to_table(self.repertoire))
+
+    @property
+    def num_cells(self) -> int:
+        return int(np.shape(self.repertoire.fitnesses)[0])
+
+    def elite(self, cell: int) -> Elite:
+        """The elite of `cell`; RunError if the cell does not exist or holds none."""
+        rep = self.repertoire
+        fitnesses = np.asarray(rep.fitnesses)
+        if not 0 <= cell < len(fitnesses):
+            raise RunError(f"cell {cell}: expected a cell in [0, {len(fitnesses)}) of the repertoire")
+        if not fitnesses[cell] > -np.inf:
+            filled = np.flatnonzero(fitnesses > -np.inf)
+            some = ", ".join(str(c) for c in filled[:8]) + (", ..." if len(filled) > 8 else "")
+            raise RunError(
+                f"cell {cell} holds no elite; expected one of the {len(filled)} filled cells"
+                + (f" ({some})" if len(filled) else "")
+            )
+        genotype = None if rep.genotypes is None else jax.tree.map(lambda x: np.asarray(x)[cell], rep.genotypes)
+        return Elite(
+            cell=int(cell),
+            fitness=float(fitnesses[cell]),
+            descriptor=np.asarray(rep.descriptors)[cell],
+            stored_genotype=genotype,
+            no_genotype="" if genotype is not None else self._no_genotype(),
+        )
+
+    def best(self) -> Elite:
+        """The elite of highest fitness (the lowest cell among ties)."""
+        fitnesses = np.asarray(self.repertoire.fitnesses)
+        if not np.any(fitnesses > -np.inf):
+            raise RunError(f"{self.path}: the repertoire holds no elite")
+        return self.elite(int(np.argmax(fitnesses)))
+
+    # -- replaying and re-scoring elites --
+
+    def rollout(self, elite: Elite, record: Callable[[Any], Any] | None = None) -> Trajectory:
+        """The elite's episode, rolled out by the task's own scoring function.
+
+        Same start state and the same evaluation block width (`eval_batch`) as during
+        the run, so `return_` and `descriptor` equal the stored fitness and
+        descriptor bit for bit. `record` (a function of the batched env state after
+        each step, as in `qdrl.rollout.unroll_recorded`) fills `states`; brax tasks
+        keep the link poses by default (`brax_link_poses`), enough to render.
+        """
+        run = self.require_qd("rollout")
+        task = run.qd_task
+        if task.env is None or task.policy_scoring is None:
+            raise RunError(
+                f"rollout: expected a run of a policy task (brax tasks, point_maze), got task {task.name!r}"
+            )
+        genotype = elite.genotype
+        if record is None and hasattr(task.env, "brax_env"):
+            record = brax_link_poses
+        if record not in self._rollouts:
+            self._rollouts[record] = jax.jit(run.scoring(fixed_start=True, record=record))
+        batch = jax.tree.map(lambda x: np.asarray(x)[None], genotype)
+        ev = jax.device_get(self._rollouts[record](batch, jax.random.PRNGKey(0)))
+        tr, mask = ev.extras["transitions"], np.asarray(ev.extras["mask"])[:, 0]
+        first = jax.tree.map(lambda x: np.asarray(x)[:, 0], ev.extras.get("recorded"))
+        return Trajectory(
+            observations=np.asarray(tr.obs)[:, 0],
+            actions=np.asarray(tr.action)[:, 0],
+            rewards=np.asarray(tr.reward)[:, 0],
+            state_descriptors=np.concatenate([np.asarray(tr.desc)[:1, 0], np.asarray(tr.next_desc)[:, 0]]),
+            mask=mask,
+            length=int(mask.sum()),
+            return_=float(ev.fitnesses[0]),
+            descriptor=np.asarray(ev.descriptors)[0],
+            states=first,
+        )
+
+    def reevaluate(self, samples: int, seed: int | None = None, write: bool = True) -> dict[str, Any]:
+        """Corrected QD metrics from `samples` random-start re-scorings of every elite.
+
+        See `qdrl.qd.reevaluate`. Keys come from `seed` (default: the run's seed), so
+        the figures equal those of the run's `qd.reevaluate_samples` option for the
+        same number of samples. With `write`, also writes `reevaluation.json`.
+        """
+        if samples < 1:
+            raise RunError(f"samples: expected a positive integer, got {samples}")
+        run = self.require_qd("reevaluate")
+        seed = self.seed if seed is None else seed
+        if write:
+            return write_reevaluation(run, self.repertoire, self.path, samples, seed)
+        return _reevaluation_report(run, self.repertoire, samples, seed)
+
+
+def _reevaluation_report(run: QDRun, repertoire: Any, samples: int, seed: int) -> dict[str, Any]:
+    import time
+
+    from qdrl.qd import reevaluate as re
+
+    t0 = time.perf_counter()
+    task = run.qd_task
+    result = re.reevaluate(repertoire, run.scoring(fixed_start=False), re.default_key(seed), samples, task.qd_offset)
+    report = {"algorithm": run.algorithm, "task": run.task, **re.report(result, samples, seed)}
+    report["qd_offset"] = task.qd_offset
+    report["start_states"] = "random" if task.policy_scoring is not None else "the task's own scoring"
+    report["wall_s"] = time.perf_counter() - t0
+    return report
+
+
+def write_reevaluation(run: QDRun, repertoire: Any, out_dir: Path, samples: int, seed: int) -> dict[str, Any]:
+    """Re-evaluates `repertoire` of `run` and writes the report to `out_dir/reevaluation.json`."""
+    report = _reevaluation_report(run, repertoire, samples, seed)
+    clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in report.items()}
+    (out_dir / "reevaluation.json").write_text(json.dumps(clean, indent=2) + "\n")
+    return clean
