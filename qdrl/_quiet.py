@@ -22,9 +22,10 @@ import sys
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 if TYPE_CHECKING:
+    from importlib.abc import Loader
     from importlib.machinery import ModuleSpec
 
 _BRAX_NOTICE = r"Brax System, piplines and environments are not actively being maintained"
@@ -87,16 +88,18 @@ class _Loader:
             self._after(module)
 
 
+# module -> (stdout line prefixes dropped while it is imported, what to run after its import)
+_HOOKS: dict[str, tuple[Sequence[str], Callable[[ModuleType], None] | None]] = {
+    "mujoco": ((), _install_mujoco_handler),
+    _WARP_MODULE: (_WARP_LINES, None),
+}
+
+
 class _QuietImports:
     """Import hook (a meta path finder) for the two noisy modules: mujoco, mujoco.mjx.warp."""
 
-    _HOOKS: dict[str, tuple[Sequence[str], Callable[[ModuleType], None] | None]] = {
-        "mujoco": ((), _install_mujoco_handler),
-        _WARP_MODULE: (_WARP_LINES, None),
-    }
-
     def find_spec(self, fullname: str, path: Sequence[str] | None, target: ModuleType | None = None) -> ModuleSpec | None:
-        if fullname not in self._HOOKS:
+        if fullname not in _HOOKS:
             return None
         for finder in sys.meta_path:
             if finder is self or not hasattr(finder, "find_spec"):
@@ -107,7 +110,7 @@ class _QuietImports:
         else:
             return None
         if spec.loader is not None and hasattr(spec.loader, "exec_module"):
-            spec.loader = _Loader(spec.loader, *self._HOOKS[fullname])
+            spec.loader = cast("Loader", _Loader(spec.loader, *_HOOKS[fullname]))
         return spec
 
 
