@@ -4,11 +4,16 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from qdrl._quiet import MujocoWarning, quiet
+
 if TYPE_CHECKING:
     from qdrl.runs import load_run
 
 __version__ = "0.1.0"
-__all__ = ["__version__", "load_run"]
+__all__ = ["MujocoWarning", "__version__", "load_run", "quiet"]
+
+# Cheap (imports nothing) and narrow: see qdrl/_quiet.py for the messages it silences.
+quiet()
 
 
 def __getattr__(name: str) -> Any:

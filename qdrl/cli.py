@@ -169,6 +169,9 @@ def _cmd_reevaluate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `qdrl` console script."""
+    from qdrl import quiet
+
+    quiet()  # dependencies' import notices and MUJOCO_LOG.TXT (qdrl/_quiet.py)
     parser = argparse.ArgumentParser(prog="qdrl", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
