@@ -83,20 +83,41 @@ class Task:
         )
 
 
+FITNESS_GRADIENT = "fitness_gradient"
+"""`Evaluation.extras` key of the fitness gradients, (n, genotype_size), when a task gives them."""
+DESCRIPTOR_GRADIENTS = "descriptor_gradients"
+"""`Evaluation.extras` key of the descriptor Jacobians, (n, D, genotype_size)."""
+
+
 def batched_scoring_fn(
-    evaluate: Callable[[Array], tuple[Fitness, Descriptor]], genotype_size: int
+    evaluate: Callable[[Array], tuple[Fitness, Descriptor]],
+    genotype_size: int,
+    gradients: bool = False,
 ) -> ScoringFn:
-    """Turns a deterministic one-genotype `x -> (fitness (), descriptor (D,))` into a `ScoringFn`."""
+    """Turns a deterministic one-genotype `x -> (fitness (), descriptor (D,))` into a `ScoringFn`.
+
+    With `gradients`, the evaluation's extras also hold `jax.grad` of the fitness
+    (`FITNESS_GRADIENT`, (n, genotype_size)) and `jax.jacrev` of the descriptor
+    (`DESCRIPTOR_GRADIENTS`, (n, D, genotype_size)) of `evaluate` itself, for the
+    differentiable-QD emitters (OMG-MEGA, CMA-MEGA). Without, nothing is
+    differentiated.
+    """
     batched = jax.vmap(evaluate)
+    fitness_grad = jax.vmap(jax.grad(lambda x: evaluate(x)[0]))
+    descriptor_jac = jax.vmap(jax.jacrev(lambda x: evaluate(x)[1]))
 
     def scoring_fn(genotypes: Array, key: PRNGKey) -> Evaluation:
         del key  # deterministic
         genotypes = check_genotypes(genotypes, genotype_size)
         fitnesses, descriptors = batched(genotypes)
+        extras: dict[str, Any] = {}
+        if gradients:
+            extras[FITNESS_GRADIENT] = fitness_grad(genotypes).astype(jnp.float32)
+            extras[DESCRIPTOR_GRADIENTS] = descriptor_jac(genotypes).astype(jnp.float32)
         return Evaluation(
             fitnesses=fitnesses.astype(jnp.float32),
             descriptors=descriptors.astype(jnp.float32),
-            extras={},
+            extras=extras,
             env_steps=jnp.zeros((), jnp.int32),
         )
 
