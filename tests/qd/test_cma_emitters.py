@@ -172,6 +172,6 @@ def test_cma_emitters_improve_the_qd_score(ranker: str, selection: str, restart:
     em = _emitter(ranker=ranker, selection_rule=selection, restart_rule=restart)
     state, metrics = _run(em, _grid(alpha, 0.0) if alpha else _grid(), 40)
     qd = np.asarray(metrics["qd_score"])
-    assert qd[-1] > 5 * qd[0] and np.all(np.diff(qd) >= 0)
+    assert qd[-1] > 5 * qd[0] and np.all(np.diff(np.asarray(metrics["coverage"])) >= 0)
     assert float(metrics["normalised_qd_score"][-1]) == pytest.approx(qd[-1] / (16 * 16), rel=1e-6)
     assert int(state.evaluations) == 1 + 40 * 24
