@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import Evaluation, ScoringFn
+from qdrl.qd.dqd import DESCRIPTOR_GRADIENTS, FITNESS_GRADIENT
 from qdrl.types import Array, Descriptor, Fitness, PRNGKey
 
 
@@ -83,12 +84,6 @@ class Task:
         )
 
 
-FITNESS_GRADIENT = "fitness_gradient"
-"""`Evaluation.extras` key of the fitness gradients, (n, genotype_size), when a task gives them."""
-DESCRIPTOR_GRADIENTS = "descriptor_gradients"
-"""`Evaluation.extras` key of the descriptor Jacobians, (n, D, genotype_size)."""
-
-
 def batched_scoring_fn(
     evaluate: Callable[[Array], tuple[Fitness, Descriptor]],
     genotype_size: int,
@@ -97,8 +92,8 @@ def batched_scoring_fn(
     """Turns a deterministic one-genotype `x -> (fitness (), descriptor (D,))` into a `ScoringFn`.
 
     With `gradients`, the evaluation's extras also hold `jax.grad` of the fitness
-    (`FITNESS_GRADIENT`, (n, genotype_size)) and `jax.jacrev` of the descriptor
-    (`DESCRIPTOR_GRADIENTS`, (n, D, genotype_size)) of `evaluate` itself, for the
+    (`qdrl.qd.dqd.FITNESS_GRADIENT`, (n, genotype_size)) and `jax.jacrev` of the
+    descriptor (`DESCRIPTOR_GRADIENTS`, (n, D, genotype_size)) of `evaluate` itself, for the
     differentiable-QD emitters (OMG-MEGA, CMA-MEGA). Without, nothing is
     differentiated.
     """

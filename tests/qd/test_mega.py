@@ -10,12 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from qdrl.qd.dqd import jacobian
 from qdrl.qd.emitters.mega import (
     CMAMegaConfig,
     CMAMegaEmitter,
     OMGMegaConfig,
     OMGMegaEmitter,
-    jacobian,
     normalise_rows,
 )
 from qdrl.qd.map_elites import MapElites

@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from qdrl.qd.dqd import DESCRIPTOR_GRADIENTS, FITNESS_GRADIENT
 from qdrl.tasks import make_task
-from qdrl.tasks.base import DESCRIPTOR_GRADIENTS, FITNESS_GRADIENT
 
 
 def test_lp_sphere_definition() -> None:

@@ -5,8 +5,7 @@ is CMA-MEGA on CMA-MAE's archive (Fontaine & Nikolaidis 2023). pyribs'
 `GradientOperatorEmitter` and `GradientArborescenceEmitter` are the reference
 for the options. Both emitters read the task's gradients: the fitness gradient
 and the descriptor Jacobian that a task built with `gradients=True` hands back
-in `Evaluation.extras` (`qdrl.tasks.base.FITNESS_GRADIENT`,
-`DESCRIPTOR_GRADIENTS`). Genotypes are flat vectors (n,).
+in `Evaluation.extras` (`qdrl.qd.dqd`). Genotypes are flat vectors (n,).
 
 OMG-MEGA: an offspring is an elite x plus |c_0| g_f(x) + sum_j c_j g_j(x), c ~
 N(0, sigma_g^2 I), with the (normalised) gradients of the fitness and of each
@@ -43,6 +42,7 @@ import optax
 
 from qdrl.qd.base import AddResult, Evaluation, Repertoire, ScoringFn
 from qdrl.qd.cma_es import CMAES, CMAESState, recombination_weights
+from qdrl.qd.dqd import jacobian
 from qdrl.qd.emitters.cma import (
     check_search_options,
     must_restart,
@@ -51,7 +51,6 @@ from qdrl.qd.emitters.cma import (
 )
 from qdrl.qd.emitters.rankers import Outcome, outcome, random_direction, rank, uses_direction
 from qdrl.qd.repertoires.cells import sample_filled_indices
-from qdrl.tasks.base import DESCRIPTOR_GRADIENTS, FITNESS_GRADIENT
 from qdrl.types import Array, Genotype, PRNGKey
 
 __all__ = [
@@ -60,22 +59,10 @@ __all__ = [
     "CMAMegaState",
     "OMGMegaConfig",
     "OMGMegaEmitter",
-    "jacobian",
     "normalise_rows",
 ]
 
 EPSILON = 1e-8  # pyribs' epsilon in the gradient norms
-
-
-def jacobian(extras: dict[str, Any]) -> Array:
-    """(n, 1 + D, d): each evaluated solution's fitness gradient, then its descriptor gradients."""
-    missing = {FITNESS_GRADIENT, DESCRIPTOR_GRADIENTS} - set(extras)
-    if missing:
-        raise ValueError(
-            "MEGA emitters need the task's gradients in the evaluation extras "
-            f"(missing {sorted(missing)}): build the task with gradients=True"
-        )
-    return jnp.concatenate([extras[FITNESS_GRADIENT][:, None, :], extras[DESCRIPTOR_GRADIENTS]], axis=1)
 
 
 def normalise_rows(jac: Array) -> Array:
