@@ -1,7 +1,7 @@
 """Differentiable QD's contract: where an evaluation hands back the gradients of a task.
 
-Fontaine & Nikolaidis 2021, "Differentiable Quality Diversity". A task built with
-`gradients=True` (e.g. `lp_sphere`, `arm`) puts, for n evaluated genotypes of
+Fontaine & Nikolaidis 2021, "Differentiable Quality Diversity". A differentiable
+task's `gradient_scoring_fn` (e.g. `lp_sphere`'s, `arm`'s) puts, for n evaluated genotypes of
 size d with D descriptors, the fitness gradients under `FITNESS_GRADIENT`
 ((n, d)) and the descriptor Jacobians under `DESCRIPTOR_GRADIENTS` ((n, D, d))
 in `Evaluation.extras`; the MEGA emitters read them with `jacobian`.
@@ -27,7 +27,7 @@ def jacobian(extras: dict[str, Any]) -> Array:
     if missing:
         raise ValueError(
             "MEGA emitters need the task's gradients in the evaluation extras "
-            f"(missing {sorted(missing)}): build the task with gradients=True"
+            f"(missing {sorted(missing)}): evaluate with the task's gradient_scoring_fn"
         )
     return jnp.concatenate(
         [extras[FITNESS_GRADIENT][:, None, :], extras[DESCRIPTOR_GRADIENTS]], axis=1

@@ -32,6 +32,9 @@ class Task:
     `apply(genotype, obs) -> action`), e.g. whole RL agents in ME-PBT, and
     `episode_descriptor`: how an episode's descriptor is read from its state
     descriptors ("final" or "mean"), so that RL runs fill the same archive.
+    `gradient_scoring_fn`, for differentiable tasks, is `scoring_fn` whose
+    evaluations also carry the fitness gradient and descriptor Jacobian
+    (`qdrl.qd.dqd`); runs that do not ask for it differentiate nothing.
     """
 
     name: str
@@ -48,6 +51,7 @@ class Task:
     env: Any = None
     policy_scoring: Callable[[Any], ScoringFn] | None = None
     episode_descriptor: str | None = None
+    gradient_scoring_fn: ScoringFn | None = None
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):

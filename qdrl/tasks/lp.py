@@ -15,9 +15,9 @@ Quality Diversity") and 2023 (CMA-MAE); the definitions of their experiment code
   below 0 far outside the box, as in the papers.
 
 The QD score of the papers is computed with offset 0 and normalised by the
-number of cells (`normalised_qd_score`). With `gradients=True` every evaluation
-carries the fitness gradient and the descriptor Jacobian (autodiff of these very
-functions) for the MEGA emitters.
+number of cells (`normalised_qd_score`). `task.gradient_scoring_fn` evaluates
+with the fitness gradient and the descriptor Jacobian (autodiff of these very
+functions) in the extras, for the MEGA emitters.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.tasks.base import Task, batched_scoring_fn
-from qdrl.tasks.functions import _project, _rastrigin_f, _sphere_f
+from qdrl.tasks.functions import NumDims, _project, _rastrigin_f, _sphere_f
 from qdrl.types import Array, PRNGKey
 
 __all__ = ["lp_plateau", "lp_rastrigin", "lp_sphere"]
@@ -52,7 +52,7 @@ def _normal_init(num_dims: int) -> Callable[[PRNGKey, int], Array]:
     return init
 
 
-def _lp_task(name: str, fitness: Callable[[Array], Array], num_dims: int, gradients: bool) -> Task:
+def _lp_task(name: str, fitness: Callable[[Array], Array], num_dims: int) -> Task:
     if not (isinstance(num_dims, int) and num_dims >= 2):
         raise ValueError(f"{name}: num_dims must be an integer >= 2, got {num_dims!r}")
 
@@ -62,7 +62,8 @@ def _lp_task(name: str, fitness: Callable[[Array], Array], num_dims: int, gradie
     box = BOUND * num_dims / 2.0
     return Task(
         name=name,
-        scoring_fn=batched_scoring_fn(evaluate, num_dims, gradients),
+        scoring_fn=batched_scoring_fn(evaluate, num_dims),
+        gradient_scoring_fn=batched_scoring_fn(evaluate, num_dims, gradients=True),
         descriptor_low=(-box, -box),
         descriptor_high=(box, box),
         genotype_size=num_dims,
@@ -74,17 +75,17 @@ def _lp_task(name: str, fitness: Callable[[Array], Array], num_dims: int, gradie
     )
 
 
-def lp_sphere(num_dims: int = 100, gradients: bool = False) -> Task:
+def lp_sphere(num_dims: NumDims = 100) -> Task:
     """LP sphere: 100 (1 - sum (x_i - 2.048)^2 / (n 7.168^2)); 100 at x = 2.048, 0 at x = -5.12."""
     worst = num_dims * (-BOUND - SHIFT) ** 2
 
     def fitness(x: Array) -> Array:
         return 100.0 * (1.0 - _sphere_f(x - SHIFT) / worst)
 
-    return _lp_task("lp_sphere", fitness, num_dims, gradients)
+    return _lp_task("lp_sphere", fitness, num_dims)
 
 
-def lp_rastrigin(num_dims: int = 100, gradients: bool = False) -> Task:
+def lp_rastrigin(num_dims: NumDims = 100) -> Task:
     """LP rastrigin: 100 (1 - R(x - 2.048) / R(-7.168 ...)), R Rastrigin's function (A = 10)."""
     d = -BOUND - SHIFT
     worst = num_dims * (10.0 + d * d - 10.0 * math.cos(2.0 * math.pi * d))
@@ -92,14 +93,14 @@ def lp_rastrigin(num_dims: int = 100, gradients: bool = False) -> Task:
     def fitness(x: Array) -> Array:
         return 100.0 * (1.0 - _rastrigin_f(x - SHIFT) / worst)
 
-    return _lp_task("lp_rastrigin", fitness, num_dims, gradients)
+    return _lp_task("lp_rastrigin", fitness, num_dims)
 
 
-def lp_plateau(num_dims: int = 100, gradients: bool = False) -> Task:
+def lp_plateau(num_dims: NumDims = 100) -> Task:
     """LP plateau: 100 - mean_i max(|x_i| - 5.12, 0)^2 (100 everywhere inside the box)."""
 
     def fitness(x: Array) -> Array:
         excess = jnp.maximum(jnp.abs(x) - BOUND, 0.0)
         return 100.0 - jnp.mean(excess * excess)
 
-    return _lp_task("lp_plateau", fitness, num_dims, gradients)
+    return _lp_task("lp_plateau", fitness, num_dims)

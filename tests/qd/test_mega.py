@@ -23,7 +23,9 @@ from qdrl.qd.repertoires import grid_repertoire
 from qdrl.tasks import make_task
 
 N = 8
-TASK = make_task("lp_sphere", num_dims=N, gradients=True)
+TASK = make_task("lp_sphere", num_dims=N)
+SCORE = TASK.gradient_scoring_fn
+assert SCORE is not None
 
 
 def _grid(alpha: float | None = None):  # type: ignore[no-untyped-def]
@@ -32,7 +34,7 @@ def _grid(alpha: float | None = None):  # type: ignore[no-untyped-def]
 
 
 def _run(emitter, rep, init, iterations: int = 30):  # type: ignore[no-untyped-def]
-    me = MapElites(TASK.scoring_fn, emitter, rep, qd_offset=TASK.qd_offset)
+    me = MapElites(SCORE, emitter, rep, qd_offset=TASK.qd_offset)
     state = me.init(init, jax.random.PRNGKey(0))
     return jax.jit(lambda s: me.run(s, iterations))(state)
 
@@ -41,7 +43,7 @@ def test_omg_mega_steps_elites_along_their_stored_gradients() -> None:
     em = OMGMegaEmitter(OMGMegaConfig(batch_size=16, sigma_g=1.0))
     init = jax.random.normal(jax.random.PRNGKey(5), (6, N))
     rep = _grid()
-    ev = TASK.scoring_fn(init, None)
+    ev = SCORE(init, None)
     rep, added = rep.add(init, ev.descriptors, ev.fitnesses)
     store = em.init(jax.random.PRNGKey(0), rep, ev, init)
     # each elite's row holds its own Jacobian; the other cells are zeros
@@ -83,7 +85,7 @@ def test_cma_mega_variants_improve_the_qd_score(
         num_instances=3, batch_size=7, sigma0=2.0, learning_rate=lr, optimizer=optimizer,
         ranker=ranker, restart_rule=restart,
     )
-    em = CMAMegaEmitter(config, TASK.scoring_fn, N)
+    em = CMAMegaEmitter(config, SCORE, N)
     state, metrics = _run(em, _grid(alpha), jnp.zeros((1, N)))
     qd = np.asarray(metrics["qd_score"])
     assert qd[-1] > 5 * qd[0] and np.all(np.diff(np.asarray(metrics["coverage"])) >= 0)
@@ -91,7 +93,7 @@ def test_cma_mega_variants_improve_the_qd_score(
     es = state.emitter_state
     # theta moved away from x0 and its stored gradients are those of the task at theta
     assert float(jnp.max(jnp.abs(es.theta))) > 0.1
-    expected = normalise_rows(jacobian(TASK.scoring_fn(es.theta, None).extras))
+    expected = normalise_rows(jacobian(SCORE(es.theta, None).extras))
     np.testing.assert_allclose(np.asarray(es.jacobian), np.asarray(expected), rtol=1e-4, atol=1e-6)
 
 
@@ -106,6 +108,5 @@ def test_mega_rejects_bad_options_and_tasks_without_gradients() -> None:
             CMAMegaConfig(**kw).check()  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=re.escape("emitter.sigma_g: expected a number > 0, got nan")):
         OMGMegaConfig(sigma_g=math.nan).check()
-    plain = make_task("lp_sphere", num_dims=N)
-    with pytest.raises(ValueError, match="build the task with gradients=True"):
-        jacobian(plain.scoring_fn(jnp.zeros((1, N)), None).extras)
+    with pytest.raises(ValueError, match="evaluate with the task's gradient_scoring_fn"):
+        jacobian(TASK.scoring_fn(jnp.zeros((1, N)), None).extras)

@@ -41,13 +41,15 @@ def test_lp_rastrigin_and_plateau_definitions() -> None:
 def test_gradients_match_finite_differences(name: str) -> None:
     n = 6
     kw = {"num_dofs": n} if name == "arm" else {"num_dims": n}
-    task = make_task(name, gradients=True, **kw)
+    task = make_task(name, **kw)
+    assert task.gradient_scoring_fn is not None
     key = jax.random.PRNGKey(1)
     if name == "arm":
         x = jax.random.uniform(key, (3, n), minval=0.1, maxval=0.9)
     else:  # genes inside and outside the box, none at its edge
         x = jnp.array([[0.3, -1.2, 6.5, 2.0, -7.0, 4.1]] * 3) + 0.1 * jax.random.normal(key, (3, n))
-    ev = task.scoring_fn(x, key)
+    ev = task.gradient_scoring_fn(x, key)
+    np.testing.assert_array_equal(np.asarray(ev.fitnesses), np.asarray(task.scoring_fn(x, key).fitnesses))
     grad = np.asarray(ev.extras[FITNESS_GRADIENT])
     jac = np.asarray(ev.extras[DESCRIPTOR_GRADIENTS])
     assert grad.shape == (3, n) and jac.shape == (3, 2, n)

@@ -4,8 +4,9 @@ Fontaine & Nikolaidis 2021, "Differentiable Quality Diversity" (NeurIPS); CMA-MA
 is CMA-MEGA on CMA-MAE's archive (Fontaine & Nikolaidis 2023). pyribs'
 `GradientOperatorEmitter` and `GradientArborescenceEmitter` are the reference
 for the options. Both emitters read the task's gradients: the fitness gradient
-and the descriptor Jacobian that a task built with `gradients=True` hands back
-in `Evaluation.extras` (`qdrl.qd.dqd`). Genotypes are flat vectors (n,).
+and the descriptor Jacobian that a task's `gradient_scoring_fn` hands back in
+`Evaluation.extras` (`qdrl.qd.dqd`); run OMG-MEGA's loop with that scoring
+function. Genotypes are flat vectors (n,).
 
 OMG-MEGA: an offspring is an elite x plus |c_0| g_f(x) + sum_j c_j g_j(x), c ~
 N(0, sigma_g^2 I), with the (normalised) gradients of the fitness and of each
@@ -210,8 +211,8 @@ class CMAMegaEmitter:
 
     Args:
       config: the options (see `CMAMegaConfig`).
-      gradient_fn: the task's scoring function built with `gradients=True`; the
-        emitter calls it on its solution points (K rows) when they move.
+      gradient_fn: the task's `gradient_scoring_fn`; the emitter calls it on its
+        solution points (K rows) when they move.
       num_dims: n, the genotype size.
       descriptor_low, descriptor_high: the descriptor box, for the random-direction
         rankers (default: the grid repertoire's bounds).
