@@ -27,7 +27,8 @@ def qd_metrics(repertoire: Any, qd_offset: float) -> dict[str, Array]:
 
     Returns:
       float32 `qd_score` = sum over filled cells of (fitness - qd_offset) (0 when
-      empty); `coverage` = filled / C in [0, 1]; `max_fitness` (-inf when empty);
+      empty); `normalised_qd_score` = qd_score / C (the QD score per cell of the
+      CMA-ME and CMA-MAE papers' tables); `coverage` = filled / C in [0, 1]; `max_fitness` (-inf when empty);
       `mean_fitness` over the filled cells (NaN when empty: there is no mean; plots
       and logs skip it); int32 `num_elites`.
     """
@@ -44,4 +45,6 @@ def qd_metrics(repertoire: Any, qd_offset: float) -> dict[str, Array]:
             num_elites > 0, total / jnp.maximum(num_elites, 1).astype(jnp.float32), jnp.nan
         ),
         "num_elites": num_elites,
+        "normalised_qd_score": (total - qd_offset * num_elites.astype(jnp.float32))
+        / fitnesses.shape[0],
     }

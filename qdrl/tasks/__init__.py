@@ -15,6 +15,7 @@ from qdrl.tasks.brax_qd import BRAX_TASKS
 from qdrl.tasks.deceptive import archimedean_spiral, deceptive_evolvability, ssf
 from qdrl.tasks.functions import rastrigin, rastrigin_proj, sphere, sphere_proj
 from qdrl.tasks.jumanji_qd import snake
+from qdrl.tasks.lp import lp_plateau, lp_rastrigin, lp_sphere
 from qdrl.tasks.point_maze import point_maze
 
 TASKS: dict[str, Callable[..., Task]] = {
@@ -22,6 +23,9 @@ TASKS: dict[str, Callable[..., Task]] = {
     "rastrigin": rastrigin,
     "sphere_proj": sphere_proj,
     "rastrigin_proj": rastrigin_proj,
+    "lp_sphere": lp_sphere,
+    "lp_rastrigin": lp_rastrigin,
+    "lp_plateau": lp_plateau,
     "arm": arm,
     "noisy_arm": noisy_arm,
     "archimedean_spiral": archimedean_spiral,
@@ -48,6 +52,9 @@ __all__ = [
     "archimedean_spiral",
     "arm",
     "deceptive_evolvability",
+    "lp_plateau",
+    "lp_rastrigin",
+    "lp_sphere",
     "make_task",
     "noisy_arm",
     "rastrigin",

@@ -46,13 +46,16 @@ def arm(num_dofs: PositiveInt = 100) -> Task:
     """Planar arm with `num_dofs` joints (QDax `arm_scoring_function`).
 
     qd_offset = -0.5: the standard deviation of numbers in [0, 1] is at most 0.5,
-    so every fitness lies in [-0.5, 0].
+    so every fitness lies in [-0.5, 0]. `gradient_scoring_fn` also hands back the
+    fitness gradient and descriptor Jacobian (`qdrl.qd.dqd`; zero along genes
+    clipped to [0, 1]) for the MEGA emitters.
     """
     if num_dofs < 1:
         raise ValueError(f"arm: num_dofs must be >= 1, got {num_dofs}")
     return Task(
         name="arm",
         scoring_fn=batched_scoring_fn(arm_evaluate, num_dofs),
+        gradient_scoring_fn=batched_scoring_fn(arm_evaluate, num_dofs, gradients=True),
         descriptor_low=(0.0, 0.0),
         descriptor_high=(1.0, 1.0),
         genotype_size=num_dofs,

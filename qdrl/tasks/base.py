@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import Evaluation, ScoringFn
+from qdrl.qd.dqd import DESCRIPTOR_GRADIENTS, FITNESS_GRADIENT
 from qdrl.types import Array, Descriptor, Fitness, PRNGKey
 
 
@@ -33,6 +34,9 @@ class Task:
     `qdrl.tasks.policy.policy_scoring_fn`, e.g. for random-start re-evaluations), and
     `episode_descriptor`: how an episode's descriptor is read from its state
     descriptors ("final" or "mean"), so that RL runs fill the same archive.
+    `gradient_scoring_fn`, for differentiable tasks, is `scoring_fn` whose
+    evaluations also carry the fitness gradient and descriptor Jacobian
+    (`qdrl.qd.dqd`); runs that do not ask for it differentiate nothing.
     """
 
     name: str
@@ -49,6 +53,7 @@ class Task:
     env: Any = None
     policy_scoring: Callable[..., ScoringFn] | None = None
     episode_descriptor: str | None = None
+    gradient_scoring_fn: ScoringFn | None = None
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
@@ -86,19 +91,34 @@ class Task:
 
 
 def batched_scoring_fn(
-    evaluate: Callable[[Array], tuple[Fitness, Descriptor]], genotype_size: int
+    evaluate: Callable[[Array], tuple[Fitness, Descriptor]],
+    genotype_size: int,
+    gradients: bool = False,
 ) -> ScoringFn:
-    """Turns a deterministic one-genotype `x -> (fitness (), descriptor (D,))` into a `ScoringFn`."""
+    """Turns a deterministic one-genotype `x -> (fitness (), descriptor (D,))` into a `ScoringFn`.
+
+    With `gradients`, the evaluation's extras also hold `jax.grad` of the fitness
+    (`qdrl.qd.dqd.FITNESS_GRADIENT`, (n, genotype_size)) and `jax.jacrev` of the
+    descriptor (`DESCRIPTOR_GRADIENTS`, (n, D, genotype_size)) of `evaluate` itself, for the
+    differentiable-QD emitters (OMG-MEGA, CMA-MEGA). Without, nothing is
+    differentiated.
+    """
     batched = jax.vmap(evaluate)
+    fitness_grad = jax.vmap(jax.grad(lambda x: evaluate(x)[0]))
+    descriptor_jac = jax.vmap(jax.jacrev(lambda x: evaluate(x)[1]))
 
     def scoring_fn(genotypes: Array, key: PRNGKey) -> Evaluation:
         del key  # deterministic
         genotypes = check_genotypes(genotypes, genotype_size)
         fitnesses, descriptors = batched(genotypes)
+        extras: dict[str, Any] = {}
+        if gradients:
+            extras[FITNESS_GRADIENT] = fitness_grad(genotypes).astype(jnp.float32)
+            extras[DESCRIPTOR_GRADIENTS] = descriptor_jac(genotypes).astype(jnp.float32)
         return Evaluation(
             fitnesses=fitnesses.astype(jnp.float32),
             descriptors=descriptors.astype(jnp.float32),
-            extras={},
+            extras=extras,
             env_steps=jnp.zeros((), jnp.int32),
         )
 

@@ -23,6 +23,7 @@ def test_metrics_on_hand_built_repertoire():
     metrics = qd_metrics(hand_built_grid(), qd_offset=-1.0)
     # qd_score = (1 + 1) + (3 + 1) + (0.5 + 1) = 7.5 over the three filled cells.
     assert float(metrics["qd_score"]) == 7.5
+    assert float(metrics["normalised_qd_score"]) == 7.5 / 4  # per cell, empty ones included
     assert float(metrics["coverage"]) == 0.75
     assert float(metrics["max_fitness"]) == 3.0
     assert float(metrics["mean_fitness"]) == 1.5

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from qdrl.qd.emitters.cma import CMAEmitter, CMAEmitterConfig, CMAEmitterState
 from qdrl.qd.emitters.ga import (
     GAEmitter,
     MutationFn,
@@ -13,19 +14,49 @@ from qdrl.qd.emitters.ga import (
     polynomial_emitter,
     polynomial_mutation,
 )
+from qdrl.qd.emitters.mega import (
+    CMAMegaConfig,
+    CMAMegaEmitter,
+    CMAMegaState,
+    OMGMegaConfig,
+    OMGMegaEmitter,
+)
 from qdrl.qd.emitters.multi import MultiEmitter, concat_batches, split_batch
+from qdrl.qd.emitters.rankers import RANKERS, Outcome, outcome, rank
+from qdrl.qd.emitters.scheduler import (
+    BanditScheduler,
+    BanditState,
+    SchedulerConfig,
+    StatelessInstances,
+)
 
 __all__ = [
+    "RANKERS",
+    "BanditScheduler",
+    "BanditState",
+    "CMAEmitter",
+    "CMAEmitterConfig",
+    "CMAEmitterState",
+    "CMAMegaConfig",
+    "CMAMegaEmitter",
+    "CMAMegaState",
     "GAEmitter",
     "MultiEmitter",
     "MutationFn",
+    "OMGMegaConfig",
+    "OMGMegaEmitter",
+    "Outcome",
+    "SchedulerConfig",
+    "StatelessInstances",
     "VariationFn",
     "concat_batches",
     "gaussian_mutation",
     "isoline_emitter",
     "isoline_variation",
+    "outcome",
     "polynomial_crossover",
     "polynomial_emitter",
     "polynomial_mutation",
+    "rank",
     "split_batch",
 ]

@@ -26,6 +26,7 @@ Typical use::
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -202,6 +203,10 @@ class CellRepertoire:
       lookup_table, lookup_grid: for a low-dimensional CVT archive built with bounds,
         the lookup grid (candidate centroids per lookup cell; its shape and box) that
         makes the exact nearest-centroid search cheap (`lookup.py`); else None.
+      thresholds, learning_rate, threshold_min: CMA-MAE's archive (see
+        `with_learning_rate`): (C,) float32 acceptance thresholds kept apart from
+        the elites, the archive learning rate alpha and the thresholds' start
+        value; None / None / -inf for a plain elitist repertoire.
     """
 
     genotypes: Genotype
@@ -213,6 +218,9 @@ class CellRepertoire:
     high: tuple[float, ...] | None = None
     lookup_table: Array | None = None
     lookup_grid: tuple[tuple[int, ...], tuple[float, ...], tuple[float, ...]] | None = None
+    thresholds: Array | None = None
+    learning_rate: float | None = None
+    threshold_min: float = -math.inf
 
     @property
     def lookup(self) -> Lookup | None:
@@ -337,7 +345,80 @@ class CellRepertoire:
             ).astype(jnp.float32),
             cell=cell.astype(jnp.int32),
         )
+        if self.thresholds is not None:
+            return self._update_thresholds(new, result, fit, cell)
         return new, result
+
+    def with_learning_rate(
+        self, learning_rate: float, threshold_min: float = -math.inf
+    ) -> CellRepertoire:
+        """This (empty) repertoire as CMA-MAE's archive: thresholds apart from elites.
+
+        Fontaine & Nikolaidis 2023, "Covariance Matrix Adaptation MAP-Annealing";
+        pyribs' archives with `learning_rate` and `threshold_min`. Every cell gets a
+        threshold t = `threshold_min`. A candidate is accepted when its fitness f
+        beats its cell's threshold (as it was before the batch); its `AddResult`
+        improvement is f - t (f itself in a cell whose threshold is still -inf).
+        The k candidates of a batch that beat the threshold of one cell move it to
+        (1 - alpha)^k t + (1 - (1 - alpha)^k) mean(f) (Fontaine & Nikolaidis'
+        batch rule, t <- (1 - alpha) t + alpha f for one). The elites themselves
+        stay elitist: each cell keeps the best candidate it was ever offered, so
+        the metrics read the best solutions as before.
+
+        With `threshold_min` = -inf the threshold of a cell is the best fitness it
+        received (alpha must then be 1): this is CMA-ME's archive, and runs on it
+        equal runs on the plain repertoire bit for bit.
+        """
+        alpha = learning_rate
+        if not (isinstance(alpha, int | float) and 0.0 <= alpha <= 1.0):
+            raise ValueError(f"repertoire.learning_rate: expected a number in [0, 1], got {alpha!r}")
+        if not (isinstance(threshold_min, int | float) and threshold_min < math.inf):
+            raise ValueError(
+                f"repertoire.threshold_min: expected a finite number or -inf, got {threshold_min!r}"
+            )
+        if threshold_min == -math.inf and alpha != 1.0:
+            raise ValueError(
+                "repertoire.threshold_min: expected a finite number when "
+                f"repertoire.learning_rate < 1, got {threshold_min!r}"
+            )
+        return dataclasses.replace(
+            self,
+            thresholds=jnp.full((self.num_cells,), threshold_min, jnp.float32),
+            learning_rate=float(alpha),
+            threshold_min=float(threshold_min),
+        )
+
+    def _update_thresholds(
+        self, new: CellRepertoire, result: AddResult, fit: Array, cell: Array
+    ) -> tuple[CellRepertoire, AddResult]:
+        """CMA-MAE's thresholds after a batch; improvement measured against them."""
+        assert self.thresholds is not None and self.learning_rate is not None
+        num_cells = self.num_cells
+        valid = cell >= 0
+        before = jnp.where(valid, self.thresholds[jnp.clip(cell, 0)], -jnp.inf)
+        beats = valid & (fit > before)
+        segment = jnp.where(beats, cell, num_cells)
+        if self.threshold_min == -math.inf:
+            best = jax.ops.segment_max(
+                jnp.where(beats, fit, -jnp.inf), segment, num_segments=num_cells + 1
+            )
+            thresholds = jnp.maximum(self.thresholds, best[:num_cells])
+        else:
+            count = jax.ops.segment_sum(
+                beats.astype(jnp.float32), segment, num_segments=num_cells + 1
+            )[:num_cells]
+            total = jax.ops.segment_sum(
+                jnp.where(beats, fit, 0.0), segment, num_segments=num_cells + 1
+            )[:num_cells]
+            keep = (1.0 - self.learning_rate) ** count
+            moved = keep * self.thresholds + (1.0 - keep) * total / jnp.maximum(count, 1.0)
+            thresholds = jnp.where(count > 0, moved, self.thresholds)
+        base = jnp.where(before == -jnp.inf, 0.0, before)
+        improvement = jnp.where(valid, fit - base, -jnp.inf).astype(jnp.float32)
+        return (
+            dataclasses.replace(new, thresholds=thresholds),
+            result._replace(improvement=improvement),
+        )
 
     def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
         """`num_samples` genotypes drawn uniformly, with replacement, among the filled cells.
@@ -352,8 +433,8 @@ class CellRepertoire:
 
 jax.tree_util.register_dataclass(
     CellRepertoire,
-    data_fields=["genotypes", "fitnesses", "descriptors", "centroids", "lookup_table"],
-    meta_fields=["grid_shape", "low", "high", "lookup_grid"],
+    data_fields=["genotypes", "fitnesses", "descriptors", "centroids", "lookup_table", "thresholds"],
+    meta_fields=["grid_shape", "low", "high", "lookup_grid", "learning_rate", "threshold_min"],
 )
 
 

@@ -1,0 +1,156 @@
+"""Rankers of CMA-ME and its family: how an emitter orders its evaluated offspring for CMA-ES.
+
+Fontaine, Togelius, Nikolaidis & Hoover 2020, "Covariance Matrix Adaptation for
+the Rapid Illumination of Behavior Space" (improvement, optimizing and
+random-direction emitters); pyribs' rankers (`ribs.emitters.rankers`) give the
+names. A ranker is a pure function of an `Outcome` (what the archive said about
+each offspring) and, for the random-direction rankers, a direction in descriptor
+space; it returns the offspring's order, best first, and the values it ranked by.
+
+| name | ranks by |
+|---|---|
+| `imp` | improvement over the cell's elite or threshold (CMA-MAE) |
+| `2imp` | new cell first, then improved cell, then the rest; each by improvement (CMA-ME) |
+| `obj` | fitness (the optimizing emitter) |
+| `2obj` | added first (new, improved, rest), each by fitness |
+| `rd` | projection of the descriptor on the direction |
+| `2rd` | added first (new, improved, rest), each by projection (the random-direction emitter) |
+
+`outcome` turns a repertoire's `AddResult` into pyribs' per-candidate status
+(0 not added, 1 improved an occupied cell, 2 found an empty cell), judged against
+the archive BEFORE the batch, for every candidate (several offspring may beat
+the same cell; only one of them becomes its elite).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from qdrl.qd.base import AddResult
+from qdrl.types import Array, PRNGKey
+
+__all__ = [
+    "RANKERS",
+    "Outcome",
+    "check_ranker",
+    "outcome",
+    "random_direction",
+    "rank",
+    "uses_direction",
+]
+
+NOT_ADDED, IMPROVED, NEW = 0, 1, 2
+
+
+class Outcome(NamedTuple):
+    """What the archive said about each of b offspring (leading axes may be batched)."""
+
+    fitnesses: Array  # (b,)
+    descriptors: Array  # (b, D)
+    status: Array  # (b,) int32: 0 not added, 1 improved an occupied cell, 2 new cell
+    value: Array  # (b,) improvement over the cell's elite or threshold (-inf when rejected)
+
+
+def outcome(repertoire: Any, fitnesses: Array, descriptors: Array, added: AddResult) -> Outcome:
+    """Per-candidate status and improvement of a WHOLE batch just offered to `repertoire`.
+
+    `repertoire` is the cell repertoire after the `add` that returned `added`. A
+    candidate's cell was empty before the batch when it is still empty, or when
+    the batch's winner there filled a new cell. A candidate in an empty cell
+    counts as new when its cell's threshold was -inf (CMA-ME) or it beats
+    `threshold_min` (CMA-MAE: `value` is then fitness - threshold_min); in an
+    occupied cell it improved when `value` > 0. Pass the whole batch: a slice
+    cannot see a cell that another part of the batch filled.
+    """
+    cell = added.cell
+    valid = cell >= 0
+    fit = repertoire.fitnesses
+    num_cells = fit.shape[0]
+    safe = jnp.clip(cell, 0, num_cells - 1)
+    filled_now = jnp.zeros((num_cells,), bool).at[jnp.where(added.new_cell, cell, num_cells)].set(
+        True, mode="drop"
+    )
+    was_empty = (fit[safe] == -jnp.inf) | filled_now[safe]
+    value = jnp.where(valid, added.improvement, -jnp.inf).astype(jnp.float32)
+    threshold_min = float(getattr(repertoire, "threshold_min", -jnp.inf))
+    beats_empty = value > 0 if threshold_min > -jnp.inf else jnp.ones_like(valid)
+    status = jnp.where(
+        ~valid,
+        NOT_ADDED,
+        jnp.where(
+            was_empty,
+            jnp.where(beats_empty, NEW, NOT_ADDED),
+            jnp.where(value > 0, IMPROVED, NOT_ADDED),
+        ),
+    ).astype(jnp.int32)
+    return Outcome(
+        fitnesses=jnp.asarray(fitnesses, jnp.float32),
+        descriptors=jnp.asarray(descriptors, jnp.float32),
+        status=status,
+        value=value,
+    )
+
+
+def _finite_or_worst(x: Array) -> Array:
+    return jnp.where(jnp.isnan(x), -jnp.inf, x)
+
+
+def _one_stage(key: Array) -> tuple[Array, Array]:
+    key = _finite_or_worst(key)
+    # ascending sort of -key: best first; a stable sort keeps ties in batch order
+    return jnp.argsort(-key, stable=True), key
+
+
+def _two_stage(status: Array, key: Array) -> tuple[Array, Array]:
+    key = _finite_or_worst(key)
+    order = jnp.lexsort((-key, -status))
+    return order, jnp.stack([status.astype(jnp.float32), key], axis=-1)
+
+
+def _projection(out: Outcome, direction: Array) -> Array:
+    return out.descriptors @ direction
+
+
+Ranker = Callable[[Outcome, Array], tuple[Array, Array]]
+
+RANKERS: dict[str, Ranker] = {
+    "imp": lambda out, d: _one_stage(out.value),
+    "2imp": lambda out, d: _two_stage(out.status, out.value),
+    "obj": lambda out, d: _one_stage(out.fitnesses),
+    "2obj": lambda out, d: _two_stage(out.status, out.fitnesses),
+    "rd": lambda out, d: _one_stage(_projection(out, d)),
+    "2rd": lambda out, d: _two_stage(out.status, _projection(out, d)),
+}
+
+
+def check_ranker(name: str, where: str = "emitter.ranker") -> None:
+    """Raises `ValueError("<where>: expected one of ..., got ...")` for an unknown ranker name."""
+    if name not in RANKERS:
+        raise ValueError(f"{where}: expected one of {', '.join(sorted(RANKERS))}, got {name!r}")
+
+
+def uses_direction(name: str) -> bool:
+    """Whether the ranker needs a descriptor-space direction (the random-direction ones)."""
+    return name in ("rd", "2rd")
+
+
+def rank(name: str, out: Outcome, direction: Array) -> tuple[Array, Array]:
+    """(order (b,), values in that order): the offspring best first, and what they were ranked by.
+
+    `values` is (b,) for one-stage rankers and (b, 2) (status, key) for two-stage
+    ones; CMA-ES's flat-ranking stop reads it. NaN keys rank last.
+    """
+    check_ranker(name)
+    order, values = RANKERS[name](out, direction)
+    return order, values[order]
+
+
+def random_direction(key: PRNGKey, low: Array, high: Array) -> Array:
+    """A standard-normal direction in descriptor space scaled by the archive's ranges (pyribs)."""
+    low = jnp.asarray(low, jnp.float32)
+    high = jnp.asarray(high, jnp.float32)
+    return jax.random.normal(key, low.shape) * (high - low)
