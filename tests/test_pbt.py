@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -170,12 +170,16 @@ progress = false
 """
 
 
-@pytest.mark.parametrize("algorithm", ["sac_pbt", "td3_pbt"])
-def test_tiny_pbt_run(tmp_path: Path, algorithm: str) -> None:
-    spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC.format(algorithm=algorithm))
-    out = tmp_path / "out"
-    summary = run_spec(spec, [], out)
+@pytest.fixture(scope="module")
+def sac_pbt_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """The tiny SAC-PBT run, shared by the tests that read it."""
+    tmp = tmp_path_factory.mktemp("sac_pbt")
+    spec = tmp / "spec.toml"
+    spec.write_text(SPEC.format(algorithm="sac_pbt"))
+    return spec, run_spec(spec, [], tmp / "out")
+
+
+def check_tiny_run(out: Path, summary: dict[str, Any]) -> None:
     assert summary["population_size"] == 4 and summary["exploits"] == 4  # one per log interval
     assert summary["env_steps"] == 4 * 400 and summary["member_env_steps"] == 400
     members = [summary[f"eval_return_m{i}"] for i in range(4)]
@@ -191,18 +195,27 @@ def test_tiny_pbt_run(tmp_path: Path, algorithm: str) -> None:
     assert all(len(v) == 4 for v in final.values())
 
 
-def test_pbt_resume_restores_the_whole_population(tmp_path: Path) -> None:
-    spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC.format(algorithm="sac_pbt"))
-    full = run_spec(spec, [], tmp_path / "full")
-    part = run_spec(spec, ["train.total_env_steps=200"], tmp_path / "part")
-    assert part["member_env_steps"] == 200
-    # Resume the 200-step run's checkpoint as the 400-step spec: continue from it.
-    import shutil
+def test_tiny_sac_pbt_run(sac_pbt_run: tuple[Path, dict[str, Any]]) -> None:
+    spec, summary = sac_pbt_run
+    check_tiny_run(spec.parent / "out", summary)
 
-    resumed_dir = tmp_path / "resumed"
-    shutil.copytree(tmp_path / "part", resumed_dir)
-    (resumed_dir / "config.toml").write_text((tmp_path / "full" / "config.toml").read_text())
-    resumed = run_spec(spec, [], resumed_dir, resume=True)
+
+@pytest.mark.slow
+def test_tiny_td3_pbt_run(tmp_path: Path) -> None:
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC.format(algorithm="td3_pbt"))
+    check_tiny_run(tmp_path / "out", run_spec(spec, [], tmp_path / "out"))
+
+
+def test_pbt_resume_restores_the_whole_population(
+    sac_pbt_run: tuple[Path, dict[str, Any]], tmp_path: Path
+) -> None:
+    # A 200-step run extended to 400 steps continues from its checkpoint (the whole
+    # population, buffers, hyperparameters and keys) and ends where the 400-step run does.
+    spec, full = sac_pbt_run
+    out = tmp_path / "part"
+    part = run_spec(spec, ["train.total_env_steps=200"], out)
+    assert part["member_env_steps"] == 200
+    resumed = run_spec(spec, [], out, resume=True)
     for key in ("eval_return", "eval_return_median", "exploits", "coverage", "best_actor_lr"):
         assert resumed[key] == full[key], key

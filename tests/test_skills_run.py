@@ -41,7 +41,9 @@ def tiny_spec(algorithm: str) -> dict:  # type: ignore[type-arg]
     "algorithm",
     [
         "diayn",
-        "smerl_dads",
+        # SMERL's gate and DADS's model are checked on their own in tests/agents/test_skills.py,
+        # and a SMERL-DIAYN run resumes below.
+        pytest.param("smerl_dads", marks=pytest.mark.slow),
         pytest.param("dads", marks=pytest.mark.slow),
         pytest.param("smerl_diayn", marks=pytest.mark.slow),
     ],

@@ -135,7 +135,9 @@ checkpoint_every = 1
 """
 
 
-@pytest.mark.parametrize("algorithm", ["me_pbt_sac", "me_pbt_td3"])
+@pytest.mark.parametrize(
+    "algorithm", ["me_pbt_sac", pytest.param("me_pbt_td3", marks=pytest.mark.slow)]
+)
 def test_tiny_me_pbt_run(tmp_path: Path, algorithm: str) -> None:
     spec = tmp_path / "spec.toml"
     spec.write_text(SPEC.replace('algorithm = "me_pbt_sac"', f'algorithm = "{algorithm}"'))

@@ -150,7 +150,15 @@ def test_task_bounds_offsets_and_genotypes(evaluated: Evaluated) -> None:
         brax_qd.hopper_uni(backend="warp")
 
 
-@pytest.mark.parametrize("name", list(brax_qd.BRAX_TASKS))
+# The humanoid compiles slowest (about 20 s of CPU each); its tasks run with `-m slow`.
+SLOW = ("humanoid_uni", "humanoid_omni")
+
+
+def _cases(names: list[str]) -> list[Any]:
+    return [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in names]
+
+
+@pytest.mark.parametrize("name", _cases(list(brax_qd.BRAX_TASKS)))
 def test_batched_scoring_stays_in_bounds(evaluated: Evaluated, name: str) -> None:
     task, ev = evaluated(name)
     fitnesses, descriptors = np.asarray(ev.fitnesses), np.asarray(ev.descriptors)
@@ -189,7 +197,10 @@ def _survival_minus_control(
 
 @pytest.mark.parametrize(
     ("name", "healthy", "ctrl_weight", "scale"),
-    [("ant_omni", 1.0, 0.5, 1.0), ("humanoid_omni", 5.0, 0.1, 0.4)],
+    [
+        ("ant_omni", 1.0, 0.5, 1.0),
+        pytest.param("humanoid_omni", 5.0, 0.1, 0.4, marks=pytest.mark.slow),
+    ],
 )
 def test_omni_fitness_is_survival_minus_control_cost(
     evaluated: Evaluated, name: str, healthy: float, ctrl_weight: float, scale: float
