@@ -9,6 +9,13 @@ One iteration is `ask` (the emitter proposes offspring), evaluation by the
 scoring function, and `tell` (offspring offered to the repertoire, emitter
 updated). `step` chains the three under jit; `run` scans `step`. For evaluations
 done outside JAX (a simulator, a NumPy objective), call `ask` and `tell` yourself.
+
+An empty repertoire has nothing to build offspring from. Called with concrete
+values, `init` (and its variants) raises when no initial evaluation has a finite
+fitness and a finite descriptor, and `ask` raises on an empty repertoire. Under
+`jax.jit` nothing can raise: the repertoire then stays empty, sampling it gives
+NaN genotypes whose evaluations are rejected, and the metrics show it (coverage
+0, QD score 0).
 """
 
 from __future__ import annotations
@@ -49,6 +56,14 @@ def _check_evaluation(n: int, fitnesses: Array, descriptors: Array, descriptor_s
         )
 
 
+def _is_empty_concrete(repertoire: Any) -> bool:
+    """True when the repertoire holds concrete values (not traced under jit) and no elite."""
+    fitnesses = repertoire.fitnesses
+    if isinstance(fitnesses, jax.core.Tracer):
+        return False
+    return not bool(jnp.any(fitnesses > -jnp.inf))
+
+
 def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
     return Evaluation(
         fitnesses=jnp.asarray(fitnesses, jnp.float32),
@@ -82,20 +97,37 @@ class MapElites:
         self.descriptor_size = int(repertoire.descriptors.shape[-1])
 
     def init(self, genotypes: Genotype, key: PRNGKey) -> QDState:
-        """Evaluate an initial population, fill the repertoire with it, start the emitter."""
+        """Evaluate an initial population, fill the repertoire with it, start the emitter.
+
+        Raises ValueError (outside jit) when no evaluation is finite; see the module docstring.
+        """
         eval_key, key = jax.random.split(key)
         return self.init_from_evaluation(genotypes, self._score(genotypes, eval_key), key)
 
     def init_from_evaluation(
         self, genotypes: Genotype, evaluation: Evaluation, key: PRNGKey
     ) -> QDState:
-        """Fill the repertoire with an evaluated initial population and start the emitter."""
+        """Fill the repertoire with an evaluated initial population and start the emitter.
+
+        Raises ValueError (outside jit) when the repertoire is still empty afterwards,
+        i.e. no evaluation has a finite fitness and a finite descriptor.
+        """
         n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
         emitter_key, key = jax.random.split(key)
         repertoire, _ = self.empty_repertoire.add(
             genotypes, evaluation.descriptors, evaluation.fitnesses
         )
+        if _is_empty_concrete(repertoire):
+            fit = jnp.asarray(evaluation.fitnesses, jnp.float32)
+            desc = jnp.asarray(evaluation.descriptors, jnp.float32)
+            bad_fit = int(jnp.sum(~jnp.isfinite(fit)))
+            bad_desc = int(jnp.sum(~jnp.all(jnp.isfinite(desc), axis=-1)))
+            raise ValueError(
+                f"init: expected at least one initial evaluation with a finite fitness and a "
+                f"finite descriptor, got none of {n} ({bad_fit} non-finite fitnesses, "
+                f"{bad_desc} non-finite descriptors): the repertoire would stay empty"
+            )
         emitter_state = self.emitter.init(emitter_key, repertoire, evaluation, genotypes)
         return QDState(
             repertoire=repertoire,
@@ -121,7 +153,16 @@ class MapElites:
         return self.scoring_fn(genotypes, key)
 
     def ask(self, state: QDState) -> tuple[Genotype, QDState]:
-        """Offspring to evaluate, and the state with its key moved on."""
+        """Offspring to evaluate, and the state with its key moved on.
+
+        Raises ValueError (outside jit) when the repertoire is empty.
+        """
+        if _is_empty_concrete(state.repertoire):
+            raise ValueError(
+                "ask: the repertoire is empty (no elite with a finite fitness and descriptor), "
+                "so there is nothing to build offspring from; init it with evaluations that "
+                "have finite fitnesses and descriptors"
+            )
         key, emit_key = jax.random.split(state.key)
         offspring = self.emitter.emit(state.emitter_state, state.repertoire, emit_key)
         return offspring, state._replace(key=key)
