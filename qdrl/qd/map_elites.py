@@ -64,6 +64,22 @@ def _is_empty_concrete(repertoire: Any) -> bool:
     return not bool(jnp.any(fitnesses > -jnp.inf))
 
 
+def _check_some_finite(n: int, evaluation: Evaluation) -> None:
+    """Raises when concrete evaluations hold no finite (fitness, descriptor) pair: nothing to store."""
+    fitnesses, descriptors = evaluation.fitnesses, evaluation.descriptors
+    if isinstance(fitnesses, jax.core.Tracer) or isinstance(descriptors, jax.core.Tracer):
+        return
+    finite_fit = jnp.isfinite(jnp.asarray(fitnesses, jnp.float32))
+    finite_desc = jnp.all(jnp.isfinite(jnp.asarray(descriptors, jnp.float32)), axis=-1)
+    if not bool(jnp.any(finite_fit & finite_desc)):
+        raise ValueError(
+            f"init: expected at least one initial evaluation with a finite fitness and a "
+            f"finite descriptor, got none of {n} ({int(jnp.sum(~finite_fit))} non-finite "
+            f"fitnesses, {int(jnp.sum(~finite_desc))} non-finite descriptors): the "
+            f"repertoire would stay empty"
+        )
+
+
 def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
     return Evaluation(
         fitnesses=jnp.asarray(fitnesses, jnp.float32),
@@ -109,25 +125,16 @@ class MapElites:
     ) -> QDState:
         """Fill the repertoire with an evaluated initial population and start the emitter.
 
-        Raises ValueError (outside jit) when the repertoire is still empty afterwards,
-        i.e. no evaluation has a finite fitness and a finite descriptor.
+        Raises ValueError (outside jit, before adding anything) when no evaluation has
+        a finite fitness and a finite descriptor: the repertoire would stay empty.
         """
         n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
+        _check_some_finite(n, evaluation)
         emitter_key, key = jax.random.split(key)
         repertoire, _ = self.empty_repertoire.add(
             genotypes, evaluation.descriptors, evaluation.fitnesses
         )
-        if _is_empty_concrete(repertoire):
-            fit = jnp.asarray(evaluation.fitnesses, jnp.float32)
-            desc = jnp.asarray(evaluation.descriptors, jnp.float32)
-            bad_fit = int(jnp.sum(~jnp.isfinite(fit)))
-            bad_desc = int(jnp.sum(~jnp.all(jnp.isfinite(desc), axis=-1)))
-            raise ValueError(
-                f"init: expected at least one initial evaluation with a finite fitness and a "
-                f"finite descriptor, got none of {n} ({bad_fit} non-finite fitnesses, "
-                f"{bad_desc} non-finite descriptors): the repertoire would stay empty"
-            )
         emitter_state = self.emitter.init(emitter_key, repertoire, evaluation, genotypes)
         return QDState(
             repertoire=repertoire,

@@ -23,7 +23,6 @@ from hypothesis import strategies as st
 
 from qdrl.qd.base import AddResult
 from qdrl.qd.metrics import qd_metrics
-from qdrl.qd.repertoires.cells import flush_subnormals
 from qdrl.qd.repertoires import (
     CellRepertoire,
     UnstructuredRepertoire,
@@ -37,6 +36,7 @@ from qdrl.qd.repertoires import (
     unstructured_repertoire,
     write_csv,
 )
+from qdrl.qd.repertoires.cells import flush_subnormals
 
 SETTINGS = settings(max_examples=25, deadline=None, database=None, derandomize=True)
 N = 16  # candidates per batch, fixed so that jitted adds compile once
