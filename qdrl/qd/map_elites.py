@@ -89,6 +89,43 @@ def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
     )
 
 
+_PACKED_DTYPES = (jnp.dtype(jnp.float32), jnp.dtype(jnp.int32), jnp.dtype(jnp.uint32))
+
+
+def _pack_scalars(
+    metrics: dict[str, Array], layout: list[tuple[str, Any]]
+) -> tuple[Array, dict[str, Array]]:
+    """Scalar 32-bit metrics as one float32 vector (bitcast), the others apart.
+
+    Fills `layout` with every metric's (name, dtype), dtype None for those left apart.
+    """
+    layout.clear()
+    columns, rest = [], {}
+    for name, value in metrics.items():
+        value = jnp.asarray(value)
+        if value.shape == () and value.dtype in _PACKED_DTYPES:
+            layout.append((name, value.dtype))
+            columns.append(jax.lax.bitcast_convert_type(value, jnp.float32))
+        else:
+            layout.append((name, None))
+            rest[name] = value
+    return jnp.stack(columns) if columns else jnp.zeros((0,), jnp.float32), rest
+
+
+def _unpack_scalars(
+    packed: Array, rest: dict[str, Array], layout: list[tuple[str, Any]]
+) -> dict[str, Array]:
+    """Inverse of `_pack_scalars` for metrics stacked over iterations: packed (T, k)."""
+    metrics, column = {}, 0
+    for name, dtype in layout:
+        if dtype is None:
+            metrics[name] = rest[name]
+        else:
+            metrics[name] = jax.lax.bitcast_convert_type(packed[:, column], dtype)
+            column += 1
+    return metrics
+
+
 class MapElites:
     """MAP-Elites over any repertoire, emitter and scoring function."""
 
@@ -218,8 +255,22 @@ class MapElites:
         return self.tell(state._replace(key=key), offspring, evaluation)
 
     def run(self, state: QDState, num_steps: int) -> tuple[QDState, dict[str, Array]]:
-        """`num_steps` iterations in a `lax.scan`; metrics are stacked per iteration."""
-        return jax.lax.scan(lambda s, _: self.step(s), state, None, length=num_steps)
+        """`num_steps` iterations in a `lax.scan`; metrics are stacked per iteration.
+
+        The scalar 32-bit metrics leave each iteration as ONE float32 vector (integers
+        by their bit pattern, so exactly) and are unpacked after the loop: one write
+        into the stacked output per iteration instead of one per metric (on a GPU,
+        one kernel instead of six).
+        """
+        layout: list[tuple[str, Any]] = []  # (name, dtype) of the packed metrics, in order
+
+        def body(s: QDState, _: None) -> tuple[QDState, tuple[Array, dict[str, Array]]]:
+            s, metrics = self.step(s)
+            packed, rest = _pack_scalars(metrics, layout)
+            return s, (packed, rest)
+
+        state, (packed, rest) = jax.lax.scan(body, state, None, length=num_steps)
+        return state, _unpack_scalars(packed, rest, layout)
 
     def _metrics(self, state: QDState, added: AddResult) -> dict[str, Array]:
         metrics = dict(self.metrics_fn(state.repertoire, self.qd_offset))

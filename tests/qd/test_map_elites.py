@@ -137,3 +137,31 @@ def test_an_empty_repertoire_is_an_error_outside_jit_and_stays_empty_under_jit(
     assert bool(state.repertoire.is_empty) and int(state.evaluations) == 64 + 25 * 64
     np.testing.assert_array_equal(np.asarray(metrics["coverage"]), 0.0)
     np.testing.assert_array_equal(np.asarray(metrics["qd_score"]), 0.0)
+
+
+def test_scanned_metrics_travel_packed_and_come_back_exact() -> None:
+    """`run` packs the scalar metrics of an iteration into one vector: nothing is lost."""
+    from qdrl.qd.map_elites import _pack_scalars, _unpack_scalars
+
+    layout: list = []
+
+    def body(carry: None, i: jax.Array):  # type: ignore[no-untyped-def]
+        metrics = {
+            "count": jnp.int32(2**31 - 1) - i,  # not exact as a float32 value
+            "vector": jnp.ones(2) * i,  # not a scalar: stacked apart
+            "score": jnp.float32(np.nan) * i,
+            "low": jnp.float32(-np.inf) + i,
+            "unsigned": jnp.uint32(2**32 - 1) - i.astype(jnp.uint32),
+        }
+        return carry, _pack_scalars(metrics, layout)
+
+    _, (packed, rest) = jax.jit(lambda: jax.lax.scan(body, None, jnp.arange(3)))()
+    assert packed.shape == (3, 4) and packed.dtype == jnp.float32
+    out = _unpack_scalars(packed, rest, layout)
+    assert list(out) == ["count", "vector", "score", "low", "unsigned"]
+    assert out["count"].dtype == jnp.int32 and out["unsigned"].dtype == jnp.uint32
+    np.testing.assert_array_equal(np.asarray(out["count"]), [2**31 - 1, 2**31 - 2, 2**31 - 3])
+    np.testing.assert_array_equal(np.asarray(out["unsigned"]), [2**32 - 1, 2**32 - 2, 2**32 - 3])
+    np.testing.assert_array_equal(np.asarray(out["vector"]), [[0, 0], [1, 1], [2, 2]])
+    assert np.all(np.isnan(np.asarray(out["score"])))
+    np.testing.assert_array_equal(np.asarray(out["low"]), -np.inf)

@@ -109,19 +109,28 @@ def _filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> tuple[Arra
     """(indices, number of filled cells): see `sample_filled_indices`."""
     counts = jnp.cumsum(filled.astype(jnp.int32))
     total = counts[-1]
-    ranks = jax.random.randint(key, (num_samples,), 0, jnp.maximum(total, 1))
+    bits = jax.random.bits(key, (num_samples,), jnp.uint32)
+    ranks = (bits % jnp.maximum(total, 1).astype(jnp.uint32)).astype(jnp.int32)
+
     # First cell whose cumulative count exceeds the rank, i.e. the (rank+1)-th filled cell.
-    idx = jnp.searchsorted(counts, ranks, side="right", method="scan_unrolled")
+    def search(method: str) -> Array:
+        return jnp.searchsorted(counts, ranks, side="right", method=method)
+
+    idx = jax.lax.platform_dependent(
+        cpu=lambda: search("scan"), default=lambda: search("scan_unrolled")
+    )
     return jnp.where(total > 0, idx.astype(jnp.int32), 0), total
 
 
 def sample_filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> Array:
     """`num_samples` cell indices drawn uniformly, with replacement, among the filled cells.
 
-    Exact integer arithmetic: a uniform rank in `[0, num_filled)` is mapped to the
-    cell holding that rank by a binary search in the cumulative count of filled
-    cells. The search is unrolled (log2(C) steps of gather and select, no `while`
-    loop): on a GPU it fuses into one kernel, where a loop launches kernels at
+    A rank in `[0, num_filled)` (32 random bits modulo num_filled: the ranks'
+    probabilities differ by less than num_filled / 2^32 relative, 2.4e-6 for 10^4
+    filled cells) is mapped to the cell holding it by a binary search in the
+    cumulative count of filled cells. On the CPU the search is a `while` loop of
+    log2(C) steps (the smaller program); elsewhere it is unrolled into gathers and
+    selects, which a GPU fuses into one kernel where a loop launches kernels at
     every step. When no cell is filled, every index is 0 (callers check
     `num_filled`/`is_empty`, or use `sample_filled`; jitted code cannot raise).
     """
