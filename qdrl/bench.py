@@ -9,6 +9,7 @@ compiled (or only lowered) XLA module does, to compare programs op by op.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import json
 import platform
 import re
@@ -198,14 +199,27 @@ def _called(attrs: str, key: str) -> list[str]:
     return re.findall(r"%?([\w.\-]+)", m.group(1)) if m else []
 
 
+@dataclasses.dataclass
+class _Tally:
+    ops: collections.Counter[str]
+    kernels: collections.Counter[str]
+    bytes: int
+
+    def add(self, other: _Tally) -> None:
+        self.ops.update(other.ops)
+        self.kernels.update(other.kernels)
+        self.bytes += other.bytes
+
+
 def hlo_profile(hlo_text: str) -> dict[str, Any]:
     """What one call of an XLA HLO module executes: ops by kind, kernels, bytes moved.
 
     `hlo_text` is HLO text, optimised (`jax.jit(f).lower(...).compile().as_text()`)
     or not (`lower(...).as_text(dialect="hlo")`). The module is walked from its
-    entry: called computations and conditional branches (all of them) once per
-    call, while bodies once per iteration when XLA annotated a known trip count
-    (un-optimised modules have none: once). Returns:
+    entry: called computations once per call, while bodies once per iteration
+    when XLA annotated a known trip count (un-optimised modules have none: once),
+    and of a conditional's branches the costliest (most bytes), so that the
+    figures bound one execution from above. Returns:
 
     - `instructions`: instructions in the module text (its size);
     - `ops`: executed ops by opcode, fusions opened (parameters, constants,
@@ -236,30 +250,30 @@ def hlo_profile(hlo_text: str) -> dict[str, Any]:
             comps[current].append((m.group(1), m.group(2), m.group(3)))
     if entry is None:
         raise ValueError("hlo_profile: expected HLO text with an ENTRY computation")
-    ops: collections.Counter[str] = collections.Counter()
-    kernels: collections.Counter[str] = collections.Counter()
-    moved = 0
-
-    def visit(name: str, times: int, top: bool) -> None:
-        nonlocal moved
+    def tally(name: str, times: int, top: bool) -> _Tally:
+        out = _Tally(collections.Counter(), collections.Counter(), 0)
         for shape, op, rest in comps[name]:
             if op == "while":
                 trip = _TRIP_COUNT.search(rest)
                 iterations = times * (int(trip.group(1)) if trip else 1)
-                ops["while"] += times
-                ops["while_iterations"] += iterations
+                out.ops["while"] += times
+                out.ops["while_iterations"] += iterations
                 for c in _called(rest, "body") + _called(rest, "condition"):
-                    visit(c, iterations, top)
+                    out.add(tally(c, iterations, top))
                 continue
             if op == "conditional":
-                ops["conditional"] += times
-                for key in ("branch_computations", "true_computation", "false_computation"):
-                    for c in _called(rest, key):
-                        visit(c, times, top)
+                out.ops["conditional"] += times
+                branches = [
+                    tally(c, times, top)
+                    for key in ("branch_computations", "true_computation", "false_computation")
+                    for c in _called(rest, key)
+                ]
+                if branches:  # the costliest branch: an upper bound of one execution
+                    out.add(max(branches, key=lambda t: (t.bytes, sum(t.kernels.values()))))
                 continue
             if op == "call":
                 for c in _called(rest, "to_apply"):
-                    visit(c, times, top)
+                    out.add(tally(c, times, top))
                 continue
             if op in _FREE_OPS:
                 continue
@@ -267,16 +281,17 @@ def hlo_profile(hlo_text: str) -> dict[str, Any]:
             if op == "fusion":
                 inner = [o for c in _called(rest, "calls") for _, o, _ in comps.get(c, [])]
                 for c in _called(rest, "calls"):
-                    visit(c, times, False)
+                    out.ops.update(tally(c, times, False).ops)
                 kind = "fusion:" + next((h for h in HEAVY_OPS if h in inner), "loop")
             else:
-                ops[op] += times
+                out.ops[op] += times
             if top:
-                kernels[kind] += times
-                operands = rest.split("), ")[0]
-                moved += times * (_bytes_of(shape) + _bytes_of(operands))
+                out.kernels[kind] += times
+                out.bytes += times * (_bytes_of(shape) + _bytes_of(rest.split("), ")[0]))
+        return out
 
-    visit(entry, 1, True)
+    total = tally(entry, 1, True)
+    ops, kernels, moved = total.ops, total.kernels, total.bytes
     return {
         "instructions": instructions,
         "ops": dict(sorted(ops.items())),
