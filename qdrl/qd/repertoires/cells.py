@@ -107,19 +107,19 @@ def grid_centroids(
 
 def _filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> tuple[Array, Array]:
     """(indices, number of filled cells): see `sample_filled_indices`."""
+    num_cells = filled.shape[0]
+    cell = jnp.arange(num_cells, dtype=jnp.int32)
     counts = jnp.cumsum(filled.astype(jnp.int32))
     total = counts[-1]
-    bits = jax.random.bits(key, (num_samples,), jnp.uint32)
-    ranks = (bits % jnp.maximum(total, 1).astype(jnp.uint32)).astype(jnp.int32)
-
-    # First cell whose cumulative count exceeds the rank, i.e. the (rank+1)-th filled cell.
-    def search(method: str) -> Array:
-        return jnp.searchsorted(counts, ranks, side="right", method=method)
-
-    idx = jax.lax.platform_dependent(
-        cpu=lambda: search("scan"), default=lambda: search("scan_unrolled")
+    # The filled cells in order: filled cell c goes to slot counts[c] - 1; empty cells
+    # go to distinct out-of-range slots, dropped (so every index is unique).
+    slot = jnp.where(filled, counts - 1, num_cells + cell)
+    compact = jnp.zeros((num_cells,), jnp.int32).at[slot].set(
+        cell, mode="drop", unique_indices=True
     )
-    return jnp.where(total > 0, idx.astype(jnp.int32), 0), total
+    bits = jax.random.bits(key, (num_samples,), jnp.uint32)
+    ranks = bits % jnp.maximum(total, 1).astype(jnp.uint32)
+    return jnp.where(total > 0, compact[ranks.astype(jnp.int32)], 0), total
 
 
 def sample_filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> Array:
@@ -127,11 +127,10 @@ def sample_filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> Arra
 
     A rank in `[0, num_filled)` (32 random bits modulo num_filled: the ranks'
     probabilities differ by less than num_filled / 2^32 relative, 2.4e-6 for 10^4
-    filled cells) is mapped to the cell holding it by a binary search in the
-    cumulative count of filled cells. On the CPU the search is a `while` loop of
-    log2(C) steps (the smaller program); elsewhere it is unrolled into gathers and
-    selects, which a GPU fuses into one kernel where a loop launches kernels at
-    every step. When no cell is filled, every index is 0 (callers check
+    filled cells) picks an entry of the list of filled cells, built by one scatter
+    of the cells to their rank among the filled ones (a cumulative count). No
+    search: a `jnp.searchsorted` is a `while` loop whose log2(C) steps each launch
+    kernels on a GPU. When no cell is filled, every index is 0 (callers check
     `num_filled`/`is_empty`, or use `sample_filled`; jitted code cannot raise).
     """
     return _filled_indices(key, filled, num_samples)[0]
