@@ -16,6 +16,10 @@ filled cells of (fitness + 0.5) (arm fitnesses lie in [-0.5, 0]; qdrl's arm
 CVT centroids: QDax computes them with scikit-learn's k-means (not timed, like
 qdrl's JAX k-means which is also left out). Grid: QDax's Euclidean centroids,
 which its repertoire indexes by nearest-centroid search.
+
+`--hlo-dir DIR` also writes the timed program's HLO there, as `qdrl.bench.module_texts`
+names them (cpu_optimized.txt, cpu_lowered.txt, cuda_lowered.txt), for
+`compare_qdax_map_elites.py` to profile with `qdrl.bench.hlo_profile`.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import argparse
 import functools
 import json
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +46,7 @@ def main() -> None:
     p.add_argument("--iso-sigma", type=float, default=0.05)
     p.add_argument("--line-sigma", type=float, default=0.1)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--hlo-dir", default=None, help="write the timed program's HLO texts here")
     args = p.parse_args()
 
     import qdax
@@ -82,8 +88,16 @@ def main() -> None:
         return rep, metrics
 
     t0 = time.perf_counter()
-    compiled = jax.jit(run).lower(repertoire, emitter_state, key).compile()
+    traced = jax.jit(run).trace(repertoire, emitter_state, key)
+    compiled = traced.lower().compile()
     compile_s = time.perf_counter() - t0
+    if args.hlo_dir is not None:
+        out = Path(args.hlo_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "cpu_optimized.txt").write_text(compiled.as_text())
+        (out / "cpu_lowered.txt").write_text(traced.lower().as_text(dialect="hlo"))
+        cuda = traced.lower(lowering_platforms=("cuda",)).as_text(dialect="hlo")
+        (out / "cuda_lowered.txt").write_text(cuda)
     t0 = time.perf_counter()
     repertoire, _metrics = compiled(repertoire, emitter_state, key)
     jax.block_until_ready(repertoire)

@@ -2,17 +2,21 @@
 
 Each benchmark compiles its chunk function ahead of time (timed apart), runs one
 warm-up chunk, then times `repeats` chunks. Figures depend on the machine: the
-JSON records the device and the versions used.
+JSON records the device and the versions used. `hlo_profile` counts what one
+compiled (or only lowered) XLA module does, to compare programs op by op.
 """
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import json
 import platform
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -164,6 +168,180 @@ def bench_rl(quick: bool, seed: int = 0, config: str | None = None) -> list[dict
     return [time_trainer(a, "halfcheetah", seed=seed) for a in algorithms]
 
 
+_DTYPE_BYTES = {"pred": 1, "s8": 1, "u8": 1, "s16": 2, "u16": 2, "f16": 2, "bf16": 2,
+                "s32": 4, "u32": 4, "f32": 4, "s64": 8, "u64": 8, "f64": 8}
+_SHAPE = re.compile(r"\b(pred|[suf]\d+|bf16)\[([\d,]*)\]")
+_INSTRUCTION = re.compile(r"^\s+(?:ROOT\s+)?%?[\w.\-]+ = (.*?) ([a-z][\w\-]*)\((.*)$")
+_TRIP_COUNT = re.compile(r'"known_trip_count":\{"n":"(\d+)"')
+# Instructions that move no data and launch nothing.
+_FREE_OPS = frozenset(
+    {"parameter", "constant", "get-tuple-element", "tuple", "bitcast", "after-all", "opt-barrier"}
+)
+# Ops that name a fusion's kind (the first one present wins) and that an accelerator
+# runs as kernels of their own or that bound fusion.
+HEAVY_OPS = ("scatter", "sort", "dot", "custom-call", "gather", "dynamic-update-slice",
+             "reduce-window", "reduce")
+
+
+def _bytes_of(text: str) -> int:
+    total = 0
+    for dtype, dims in _SHAPE.findall(text):
+        size = 1
+        for d in dims.split(","):
+            if d:
+                size *= int(d)
+        total += size * _DTYPE_BYTES[dtype]
+    return total
+
+
+def _called(attrs: str, key: str) -> list[str]:
+    m = re.search(r"\b" + key + r"=(\{[^}]*\}|%?[\w.\-]+)", attrs)
+    return re.findall(r"%?([\w.\-]+)", m.group(1)) if m else []
+
+
+@dataclasses.dataclass
+class _Tally:
+    ops: collections.Counter[str]
+    kernels: collections.Counter[str]
+    bytes: int
+
+    def add(self, other: _Tally) -> None:
+        self.ops.update(other.ops)
+        self.kernels.update(other.kernels)
+        self.bytes += other.bytes
+
+
+def hlo_profile(hlo_text: str) -> dict[str, Any]:
+    """What one call of an XLA HLO module executes: ops by kind, kernels, bytes moved.
+
+    `hlo_text` is HLO text, optimised (`jax.jit(f).lower(...).compile().as_text()`)
+    or not (`lower(...).as_text(dialect="hlo")`). The module is walked from its
+    entry: called computations once per call, while bodies once per iteration
+    when XLA annotated a known trip count (un-optimised modules have none: once),
+    and of a conditional's branches the costliest (most bytes), so that the
+    figures bound one execution from above. Returns:
+
+    - `instructions`: instructions in the module text (its size);
+    - `ops`: executed ops by opcode, fusions opened (parameters, constants,
+      tuples, bitcasts left out); `while_iterations` counts loop iterations;
+    - `kernels`: executed top-level ops (each fusion counts once) and
+      `kernels_by_kind` (a fusion is named `fusion:` + the first of HEAVY_OPS it
+      holds, else `fusion:loop`): in an optimised module, the kernels launched;
+      in an un-optimised one, an upper bound;
+    - `bytes`: bytes read and written by those top-level ops (their operands and
+      results), the traffic to memory when nothing stays in caches.
+    """
+    comps: dict[str, list[tuple[str, str, str]]] = {}
+    entry, current, instructions = None, None, 0
+    for line in hlo_text.splitlines():
+        if line and not line[0].isspace() and line.rstrip().endswith("{") and not line.startswith("HloModule"):
+            m = re.match(r"^(ENTRY\s+)?%?([\w.\-]+)", line)
+            if m:
+                current = m.group(2)
+                comps[current] = []
+                entry = current if m.group(1) else entry
+            continue
+        if line.strip() == "}":
+            current = None
+            continue
+        m = _INSTRUCTION.match(line)
+        if m and current is not None:
+            instructions += 1
+            comps[current].append((m.group(1), m.group(2), m.group(3)))
+    if entry is None:
+        raise ValueError("hlo_profile: expected HLO text with an ENTRY computation")
+    def tally(name: str, times: int, top: bool) -> _Tally:
+        out = _Tally(collections.Counter(), collections.Counter(), 0)
+        for shape, op, rest in comps[name]:
+            if op == "while":
+                trip = _TRIP_COUNT.search(rest)
+                iterations = times * (int(trip.group(1)) if trip else 1)
+                out.ops["while"] += times
+                out.ops["while_iterations"] += iterations
+                for c in _called(rest, "body") + _called(rest, "condition"):
+                    out.add(tally(c, iterations, top))
+                continue
+            if op == "conditional":
+                out.ops["conditional"] += times
+                branches = [
+                    tally(c, times, top)
+                    for key in ("branch_computations", "true_computation", "false_computation")
+                    for c in _called(rest, key)
+                ]
+                if branches:  # the costliest branch: an upper bound of one execution
+                    out.add(max(branches, key=lambda t: (t.bytes, sum(t.kernels.values()))))
+                continue
+            if op == "call":
+                for c in _called(rest, "to_apply"):
+                    out.add(tally(c, times, top))
+                continue
+            if op in _FREE_OPS:
+                continue
+            kind = op
+            if op == "fusion":
+                inner = [o for c in _called(rest, "calls") for _, o, _ in comps.get(c, [])]
+                for c in _called(rest, "calls"):
+                    out.ops.update(tally(c, times, False).ops)
+                kind = "fusion:" + next((h for h in HEAVY_OPS if h in inner), "loop")
+            else:
+                out.ops[op] += times
+            if top:
+                out.kernels[kind] += times
+                out.bytes += times * (_bytes_of(shape) + _bytes_of(rest.split("), ")[0]))
+        return out
+
+    total = tally(entry, 1, True)
+    ops, kernels, moved = total.ops, total.kernels, total.bytes
+    return {
+        "instructions": instructions,
+        "ops": dict(sorted(ops.items())),
+        "kernels": sum(kernels.values()),
+        "kernels_by_kind": dict(sorted(kernels.items())),
+        "bytes": moved,
+    }
+
+
+def module_texts(traced: Any, compiled: Any) -> dict[str, str]:
+    """HLO texts of a jitted function: as compiled here, as lowered here, and lowered for CUDA.
+
+    `traced` is `jax.jit(f).trace(...)`, `compiled` its compiled form on this
+    backend. Lowering for CUDA needs no GPU (only XLA:GPU's optimisation does): it
+    shows the program a GPU starts from (unrolled threefry, no CPU-only branch of
+    `lax.platform_dependent`).
+    """
+    here = jax.default_backend()
+    texts = {
+        f"{here}_optimized": compiled.as_text(),
+        f"{here}_lowered": traced.lower().as_text(dialect="hlo"),
+    }
+    if here != "gpu":
+        texts["cuda_lowered"] = traced.lower(lowering_platforms=("cuda",)).as_text(dialect="hlo")
+    return texts
+
+
+def per_iteration(profile: dict[str, Any], iterations: int) -> dict[str, Any]:
+    """`hlo_profile` of a scanned run divided by its iterations (rounded to 0.01)."""
+
+    def div(x: Any) -> Any:
+        if isinstance(x, dict):
+            return {k: div(v) for k, v in x.items()}
+        return round(x / iterations, 2)
+
+    return {k: (v if k == "instructions" else div(v)) for k, v in profile.items()}
+
+
+def hlo_summary(texts: dict[str, str], iterations: int) -> dict[str, Any]:
+    """`hlo_profile` of each text of `module_texts` for a run of `iterations` scanned steps, per step.
+
+    Optimised modules carry the scan's trip count (their totals are divided by
+    `iterations`); lowered ones count the scan's body once, i.e. one step.
+    """
+    return {
+        name: per_iteration(hlo_profile(text), iterations if name.endswith("_optimized") else 1)
+        for name, text in texts.items()
+    }
+
+
 # The containers of the MAP-Elites benchmark (the QDax paper's arm setting).
 ME_CONTAINERS: dict[str, tuple[str, Any]] = {
     "cvt1024": ("cvt", 1024),
@@ -172,19 +350,28 @@ ME_CONTAINERS: dict[str, tuple[str, Any]] = {
 }
 
 
-def _time_run(me: Any, state: Any, iterations: int) -> tuple[Any, Any, float, float]:
-    """Compile `iterations` MAP-Elites steps as one scan ahead of time, then run it once.
+class TimedRun(NamedTuple):
+    """A run of scanned MAP-Elites steps, timed apart from its compilation."""
 
-    Returns (state, stacked metrics, compile seconds, run seconds).
-    """
+    state: Any
+    metrics: Any
+    compile_s: float
+    run_s: float
+    hlo: dict[str, str] | None  # `module_texts` of the run, when asked for
+
+
+def _time_run(me: Any, state: Any, iterations: int, with_hlo: bool = False) -> TimedRun:
+    """Compile `iterations` MAP-Elites steps as one scan ahead of time, then run it once."""
     jax.block_until_ready(state)
     t0 = time.perf_counter()
-    run = jax.jit(lambda s: me.run(s, iterations)).lower(state).compile()
+    traced = jax.jit(lambda s: me.run(s, iterations)).trace(state)
+    run = traced.lower().compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     state, metrics = run(state)
     jax.block_until_ready(state)
-    return state, metrics, compile_s, time.perf_counter() - t0
+    run_s = time.perf_counter() - t0
+    return TimedRun(state, metrics, compile_s, run_s, module_texts(traced, run) if with_hlo else None)
 
 
 def time_map_elites(
@@ -197,8 +384,12 @@ def time_map_elites(
     line_sigma: float = 0.1,
     cvt_samples: int = 50_000,
     seed: int = 0,
+    hlo: bool = True,
 ) -> dict[str, Any]:
-    """MAP-Elites on the arm: `iterations` iterations as one scan compiled ahead of time."""
+    """MAP-Elites on the arm: `iterations` iterations as one scan compiled ahead of time.
+
+    With `hlo`, the record's "hlo" holds `hlo_summary` of the timed program (per step).
+    """
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
     from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
@@ -220,9 +411,10 @@ def time_map_elites(
     emitter = isoline_emitter(batch_size, iso_sigma, line_sigma, task.genotype_low, task.genotype_high)
     me = MapElites(task.scoring_fn, emitter, repertoire, qd_offset=task.qd_offset)
     state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, batch_size), k2))(init_key, run_key)
-    state, metrics, compile_s, run_s = _time_run(me, state, iterations)
-    last = {k: float(v[-1]) for k, v in jax.device_get(metrics).items()}
-    return {
+    timed = _time_run(me, state, iterations, with_hlo=hlo)
+    compile_s, run_s = timed.compile_s, timed.run_s
+    last = {k: float(v[-1]) for k, v in jax.device_get(timed.metrics).items()}
+    record = {
         "bench": f"map_elites/arm/{container}",
         "library": "qdrl",
         "container": kind,
@@ -238,11 +430,17 @@ def time_map_elites(
         "coverage": last["coverage"],
         "max_fitness": last["max_fitness"],
     }
+    if timed.hlo is not None:
+        record["hlo"] = hlo_summary(timed.hlo, iterations)
+    return record
 
 
 @_register("map_elites")
 def bench_map_elites(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
-    """MAP-Elites on the 100-DoF arm, batch 1024, 200 iterations, iso-line (0.05, 0.1)."""
+    """MAP-Elites on the 100-DoF arm, batch 1024, 200 iterations, iso-line (0.05, 0.1).
+
+    Each record also profiles the timed program's HLO (`hlo_summary`, per step).
+    """
     containers = list(ME_CONTAINERS) if config is None else [config]
     kwargs: dict[str, Any] = {"iterations": 20, "cvt_samples": 10_000} if quick else {}
     return [time_map_elites(c, seed=seed, **kwargs) for c in containers]
@@ -258,13 +456,16 @@ def time_task(
     num_centroids: int = 1024,
     seed: int = 0,
 ) -> dict[str, Any]:
-    """A policy task's rollout throughput (the ceiling) and MAP-Elites' on the same task."""
+    """A policy task's rollout throughput (the ceiling) and MAP-Elites' on the same task.
+
+    Each batch is rolled out as one block (`eval_batch` = the batch), as a run does.
+    """
     from qdrl.tasks import make_task
 
-    task = make_task(name, episode_length=episode_length)
     key = jax.random.PRNGKey(seed)
     record: dict[str, Any] = {"bench": f"task/{name}", "task": name, "episode_length": episode_length}
     for batch in batches:
+        task = make_task(name, episode_length=episode_length, eval_batch=batch)
         genotypes = task.init_genotypes(key, batch)
         t0 = time.perf_counter()
         score = jax.jit(task.scoring_fn).lower(genotypes, key).compile()
@@ -304,27 +505,38 @@ def time_policy_map_elites(
     iso_sigma: float = 0.005,
     line_sigma: float = 0.05,
     seed: int = 0,
+    blocks: bool = True,
+    hlo: bool = False,
 ) -> dict[str, Any]:
-    """MAP-Elites on a policy task: `iterations` iterations as one scan compiled ahead of time."""
+    """MAP-Elites on a policy task: `iterations` iterations as one scan compiled ahead of time.
+
+    `blocks`: the task rolls out in blocks of the run's batch (`eval_batch` =
+    `batch_size`, one block per evaluation, as `qdrl run` does); False rolls the
+    batch out without blocks (`eval_batch` None), to measure what blocks cost.
+    With `hlo`, the record's "hlo" holds `hlo_summary` of the timed program.
+    """
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
     from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire
     from qdrl.tasks import make_task
 
-    task = make_task(name, episode_length=episode_length)
+    eval_batch = batch_size if blocks else None
+    task = make_task(name, episode_length=episode_length, eval_batch=eval_batch)
     init_key, cvt_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)
     centroids = cvt_centroids(cvt_key, num_centroids, cvt_samples, task.descriptor_low, task.descriptor_high)
     repertoire = cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high)
     me = MapElites(task.scoring_fn, isoline_emitter(batch_size, iso_sigma, line_sigma), repertoire, task.qd_offset)
     state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, batch_size), k2))(init_key, run_key)
-    state, metrics, compile_s, run_s = _time_run(me, state, iterations)
-    return {
+    timed = _time_run(me, state, iterations, with_hlo=hlo)
+    compile_s, run_s, metrics = timed.compile_s, timed.run_s, timed.metrics
+    record = {
         "bench": f"map_elites/{name}",
         "library": "qdrl",
         "task": name,
         "seed": seed,
         "episode_length": episode_length,
         "batch": batch_size,
+        "eval_batch": eval_batch,
         "iterations": iterations,
         "cells": num_centroids,
         "evaluations": batch_size * (iterations + 1),
@@ -335,6 +547,9 @@ def time_policy_map_elites(
         "coverage": float(metrics["coverage"][-1]),
         "max_fitness": float(metrics["max_fitness"][-1]),
     }
+    if timed.hlo is not None:
+        record["hlo"] = hlo_summary(timed.hlo, iterations)
+    return record
 
 
 @_register("policy_map_elites")

@@ -24,6 +24,13 @@ def test_bench_map_elites_quick(tmp_path: Path, capsys: pytest.CaptureFixture[st
     for key in ("compile_s", "evals_per_s", "qd_score", "coverage"):
         assert result[key] > 0, key
     assert record["machine"]["jax"]
+    # The timed program's HLO, per step: the GPU program has no conditional and no
+    # loop inside the step (the one while is the scan over iterations).
+    hlo = result["hlo"]
+    assert set(hlo) == {"cpu_optimized", "cpu_lowered", "cuda_lowered"}
+    cuda = hlo["cuda_lowered"]["ops"]
+    assert "conditional" not in cuda and cuda["while"] == 1 and cuda["scatter"] == 5
+    assert 0 < hlo["cpu_optimized"]["kernels"] < hlo["cpu_optimized"]["instructions"]
 
 
 def test_bench_rl_quick(capsys: pytest.CaptureFixture[str]) -> None:
@@ -64,3 +71,62 @@ def test_bench_policy_map_elites_quick(capsys: pytest.CaptureFixture[str]) -> No
     (result,) = json.loads(capsys.readouterr().out)["results"]
     assert result["task"] == "point_maze" and result["evaluations"] == 16 * 3
     assert result["env_steps_per_s"] > 0 and 0 < result["coverage"] <= 1
+
+
+HLO = """HloModule m
+
+%fused_scatter (p0: f32[8], p1: s32[2], p2: f32[2]) -> f32[8] {
+  %p0 = f32[8]{0} parameter(0)
+  %p1 = s32[2]{0} parameter(1)
+  %p2 = f32[2]{0} parameter(2)
+  ROOT %scatter.1 = f32[8]{0} scatter(f32[8]{0} %p0, s32[2]{0} %p1, f32[2]{0} %p2), update_window_dims={}, to_apply=%add
+}
+
+%body (t: (s32[], f32[8])) -> (s32[], f32[8]) {
+  %t = (s32[], f32[8]{0}) parameter(0)
+  %i = s32[] get-tuple-element((s32[], f32[8]{0}) %t), index=0
+  %x = f32[8]{0} get-tuple-element((s32[], f32[8]{0}) %t), index=1
+  %y = f32[8]{0} multiply(f32[8]{0} %x, f32[8]{0} %x)
+  ROOT %r = (s32[], f32[8]{0}) tuple(s32[] %i, f32[8]{0} %y)
+}
+
+%cond (t: (s32[], f32[8])) -> pred[] {
+  %t = (s32[], f32[8]{0}) parameter(0)
+  ROOT %c = pred[] constant(true)
+}
+
+%cheap (a: f32[8]) -> f32[8] {
+  ROOT %a = f32[8]{0} parameter(0)
+}
+
+%costly (a: f32[8]) -> f32[8] {
+  %a = f32[8]{0} parameter(0)
+  ROOT %d = f32[8]{0} dot(f32[8]{0} %a, f32[8]{0} %a)
+}
+
+ENTRY %main (x: f32[8], i: s32[2], u: f32[2], p: pred[]) -> f32[8] {
+  %x = f32[8]{0} parameter(0)
+  %i = s32[2]{0} parameter(1)
+  %u = f32[2]{0} parameter(2)
+  %p = pred[] parameter(3)
+  %f = f32[8]{0} fusion(f32[8]{0} %x, s32[2]{0} %i, f32[2]{0} %u), kind=kLoop, calls=%fused_scatter
+  %t0 = (s32[], f32[8]{0}) tuple(s32[] %z, f32[8]{0} %f)
+  %w = (s32[], f32[8]{0}) while((s32[], f32[8]{0}) %t0), condition=%cond, body=%body, backend_config={"known_trip_count":{"n":"3"}}
+  %g = f32[8]{0} get-tuple-element((s32[], f32[8]{0}) %w), index=1
+  ROOT %k = f32[8]{0} conditional(pred[] %p, f32[8]{0} %g, f32[8]{0} %g), true_computation=%cheap, false_computation=%costly
+}
+"""
+
+
+def test_hlo_profile_counts_loops_fusions_and_the_costliest_branch() -> None:
+    from qdrl.bench import hlo_profile
+
+    prof = hlo_profile(HLO)
+    assert prof["instructions"] == 23
+    # The while body runs 3 times; of the conditional, the branch with the dot counts.
+    assert prof["ops"] == {
+        "conditional": 1, "dot": 1, "multiply": 3, "scatter": 1, "while": 1, "while_iterations": 3
+    }
+    assert prof["kernels_by_kind"] == {"dot": 1, "fusion:scatter": 1, "multiply": 3}
+    # Bytes: fusion 32 + 8 + 8 (in) + 32 (out); multiply 3 x (64 in + 32 out); dot 64 + 32.
+    assert prof["bytes"] == 80 + 3 * 96 + 96

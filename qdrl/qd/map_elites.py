@@ -9,6 +9,13 @@ One iteration is `ask` (the emitter proposes offspring), evaluation by the
 scoring function, and `tell` (offspring offered to the repertoire, emitter
 updated). `step` chains the three under jit; `run` scans `step`. For evaluations
 done outside JAX (a simulator, a NumPy objective), call `ask` and `tell` yourself.
+
+An empty repertoire has nothing to build offspring from. Called with concrete
+values, `init` (and its variants) raises when no initial evaluation has a finite
+fitness and a finite descriptor, and `ask` raises on an empty repertoire. Under
+`jax.jit` nothing can raise: the repertoire then stays empty, sampling it gives
+NaN genotypes whose evaluations are rejected, and the metrics show it (coverage
+0, QD score 0).
 """
 
 from __future__ import annotations
@@ -49,6 +56,30 @@ def _check_evaluation(n: int, fitnesses: Array, descriptors: Array, descriptor_s
         )
 
 
+def _is_empty_concrete(repertoire: Any) -> bool:
+    """True when the repertoire holds concrete values (not traced under jit) and no elite."""
+    fitnesses = repertoire.fitnesses
+    if isinstance(fitnesses, jax.core.Tracer):
+        return False
+    return not bool(jnp.any(fitnesses > -jnp.inf))
+
+
+def _check_some_finite(n: int, evaluation: Evaluation) -> None:
+    """Raises when concrete evaluations hold no finite (fitness, descriptor) pair: nothing to store."""
+    fitnesses, descriptors = evaluation.fitnesses, evaluation.descriptors
+    if isinstance(fitnesses, jax.core.Tracer) or isinstance(descriptors, jax.core.Tracer):
+        return
+    finite_fit = jnp.isfinite(jnp.asarray(fitnesses, jnp.float32))
+    finite_desc = jnp.all(jnp.isfinite(jnp.asarray(descriptors, jnp.float32)), axis=-1)
+    if not bool(jnp.any(finite_fit & finite_desc)):
+        raise ValueError(
+            f"init: expected at least one initial evaluation with a finite fitness and a "
+            f"finite descriptor, got none of {n} ({int(jnp.sum(~finite_fit))} non-finite "
+            f"fitnesses, {int(jnp.sum(~finite_desc))} non-finite descriptors): the "
+            f"repertoire would stay empty"
+        )
+
+
 def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
     return Evaluation(
         fitnesses=jnp.asarray(fitnesses, jnp.float32),
@@ -56,6 +87,43 @@ def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
         extras={},
         env_steps=jnp.zeros((), jnp.int32),
     )
+
+
+_PACKED_DTYPES = (jnp.dtype(jnp.float32), jnp.dtype(jnp.int32), jnp.dtype(jnp.uint32))
+
+
+def _pack_scalars(
+    metrics: dict[str, Array], layout: list[tuple[str, Any]]
+) -> tuple[Array, dict[str, Array]]:
+    """Scalar 32-bit metrics as one float32 vector (bitcast), the others apart.
+
+    Fills `layout` with every metric's (name, dtype), dtype None for those left apart.
+    """
+    layout.clear()
+    columns, rest = [], {}
+    for name, value in metrics.items():
+        value = jnp.asarray(value)
+        if value.shape == () and value.dtype in _PACKED_DTYPES:
+            layout.append((name, value.dtype))
+            columns.append(jax.lax.bitcast_convert_type(value, jnp.float32))
+        else:
+            layout.append((name, None))
+            rest[name] = value
+    return jnp.stack(columns) if columns else jnp.zeros((0,), jnp.float32), rest
+
+
+def _unpack_scalars(
+    packed: Array, rest: dict[str, Array], layout: list[tuple[str, Any]]
+) -> dict[str, Array]:
+    """Inverse of `_pack_scalars` for metrics stacked over iterations: packed (T, k)."""
+    metrics, column = {}, 0
+    for name, dtype in layout:
+        if dtype is None:
+            metrics[name] = rest[name]
+        else:
+            metrics[name] = jax.lax.bitcast_convert_type(packed[:, column], dtype)
+            column += 1
+    return metrics
 
 
 class MapElites:
@@ -82,16 +150,24 @@ class MapElites:
         self.descriptor_size = int(repertoire.descriptors.shape[-1])
 
     def init(self, genotypes: Genotype, key: PRNGKey) -> QDState:
-        """Evaluate an initial population, fill the repertoire with it, start the emitter."""
+        """Evaluate an initial population, fill the repertoire with it, start the emitter.
+
+        Raises ValueError (outside jit) when no evaluation is finite; see the module docstring.
+        """
         eval_key, key = jax.random.split(key)
         return self.init_from_evaluation(genotypes, self._score(genotypes, eval_key), key)
 
     def init_from_evaluation(
         self, genotypes: Genotype, evaluation: Evaluation, key: PRNGKey
     ) -> QDState:
-        """Fill the repertoire with an evaluated initial population and start the emitter."""
+        """Fill the repertoire with an evaluated initial population and start the emitter.
+
+        Raises ValueError (outside jit, before adding anything) when no evaluation has
+        a finite fitness and a finite descriptor: the repertoire would stay empty.
+        """
         n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
+        _check_some_finite(n, evaluation)
         emitter_key, key = jax.random.split(key)
         repertoire, _ = self.empty_repertoire.add(
             genotypes, evaluation.descriptors, evaluation.fitnesses
@@ -121,7 +197,16 @@ class MapElites:
         return self.scoring_fn(genotypes, key)
 
     def ask(self, state: QDState) -> tuple[Genotype, QDState]:
-        """Offspring to evaluate, and the state with its key moved on."""
+        """Offspring to evaluate, and the state with its key moved on.
+
+        Raises ValueError (outside jit) when the repertoire is empty.
+        """
+        if _is_empty_concrete(state.repertoire):
+            raise ValueError(
+                "ask: the repertoire is empty (no elite with a finite fitness and descriptor), "
+                "so there is nothing to build offspring from; init it with evaluations that "
+                "have finite fitnesses and descriptors"
+            )
         key, emit_key = jax.random.split(state.key)
         offspring = self.emitter.emit(state.emitter_state, state.repertoire, emit_key)
         return offspring, state._replace(key=key)
@@ -170,8 +255,22 @@ class MapElites:
         return self.tell(state._replace(key=key), offspring, evaluation)
 
     def run(self, state: QDState, num_steps: int) -> tuple[QDState, dict[str, Array]]:
-        """`num_steps` iterations in a `lax.scan`; metrics are stacked per iteration."""
-        return jax.lax.scan(lambda s, _: self.step(s), state, None, length=num_steps)
+        """`num_steps` iterations in a `lax.scan`; metrics are stacked per iteration.
+
+        The scalar 32-bit metrics leave each iteration as ONE float32 vector (integers
+        by their bit pattern, so exactly) and are unpacked after the loop: one write
+        into the stacked output per iteration instead of one per metric (on a GPU,
+        one kernel instead of six).
+        """
+        layout: list[tuple[str, Any]] = []  # (name, dtype) of the packed metrics, in order
+
+        def body(s: QDState, _: None) -> tuple[QDState, tuple[Array, dict[str, Array]]]:
+            s, metrics = self.step(s)
+            packed, rest = _pack_scalars(metrics, layout)
+            return s, (packed, rest)
+
+        state, (packed, rest) = jax.lax.scan(body, state, None, length=num_steps)
+        return state, _unpack_scalars(packed, rest, layout)
 
     def _metrics(self, state: QDState, added: AddResult) -> dict[str, Array]:
         metrics = dict(self.metrics_fn(state.repertoire, self.qd_offset))

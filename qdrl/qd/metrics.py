@@ -35,15 +35,15 @@ def qd_metrics(repertoire: Any, qd_offset: float) -> dict[str, Array]:
     fitnesses = jnp.asarray(repertoire.fitnesses, jnp.float32)
     filled = fitnesses > -jnp.inf
     num_elites = jnp.sum(filled, dtype=jnp.int32)
-    stored = jnp.where(filled, fitnesses, 0.0)
-    total = jnp.sum(stored)
+    count = num_elites.astype(jnp.float32)
+    # Three reductions over the cells (count, sum, max); the QD score and the mean
+    # follow from them, so a step computes no second sum of the same fitnesses.
+    total = jnp.sum(jnp.where(filled, fitnesses, 0.0))
     return {
-        "qd_score": jnp.sum(jnp.where(filled, fitnesses - qd_offset, 0.0)),
-        "coverage": num_elites.astype(jnp.float32) / fitnesses.shape[0],
+        "qd_score": total - qd_offset * count,
+        "coverage": count / fitnesses.shape[0],
         "max_fitness": jnp.max(fitnesses),
-        "mean_fitness": jnp.where(
-            num_elites > 0, total / jnp.maximum(num_elites, 1).astype(jnp.float32), jnp.nan
-        ),
+        "mean_fitness": jnp.where(num_elites > 0, total / jnp.maximum(count, 1.0), jnp.nan),
         "num_elites": num_elites,
         "normalised_qd_score": (total - qd_offset * num_elites.astype(jnp.float32))
         / fitnesses.shape[0],

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,8 +28,15 @@ def _start(me: MapElites, seed: int = 0):  # type: ignore[no-untyped-def]
     return me.init(TASK.init_genotypes(k1, 64), k2)
 
 
-@pytest.mark.parametrize("kind", ["grid", "cvt"])
-def test_map_elites_improves_qd_score_and_coverage(kind: str) -> None:
+class Loop(NamedTuple):
+    """A MapElites and its jitted 25-step `run`, with the traces of that run."""
+
+    me: MapElites
+    run: Callable[[Any], Any]
+    traces: list[int]
+
+
+def _loop(kind: str) -> Loop:
     example = jnp.zeros((8,))
     if kind == "grid":
         rep = grid_repertoire(example, (16, 16), TASK.descriptor_low, TASK.descriptor_high)
@@ -34,19 +44,30 @@ def test_map_elites_improves_qd_score_and_coverage(kind: str) -> None:
         centroids = cvt_centroids(jax.random.PRNGKey(1), 128, 5_000, TASK.descriptor_low, TASK.descriptor_high)
         rep = cvt_repertoire(example, centroids)
     me = _me(rep)
-    state = _start(me)
-    traces = []
+    traces: list[int] = []
 
     def run(s):  # type: ignore[no-untyped-def]
         traces.append(1)
         return me.run(s, 25)
 
-    run_jit = jax.jit(run)
+    return Loop(me, jax.jit(run), traces)
+
+
+@pytest.fixture(scope="module")
+def grid_loop() -> Loop:
+    """Shared by the tests that run the grid loop, so that it compiles once for the module."""
+    return _loop("grid")
+
+
+@pytest.mark.parametrize("kind", ["grid", "cvt"])
+def test_map_elites_improves_qd_score_and_coverage(kind: str, request: pytest.FixtureRequest) -> None:
+    loop = request.getfixturevalue("grid_loop") if kind == "grid" else _loop(kind)
+    state = _start(loop.me)
     first = None
     for _ in range(4):
-        state, metrics = run_jit(state)
+        state, metrics = loop.run(state)
         first = metrics if first is None else first
-    assert len(traces) == 1
+    assert len(loop.traces) == 1
     assert int(state.iteration) == 100
     assert int(state.evaluations) == 64 + 100 * 64
     qd = np.asarray(metrics["qd_score"])
@@ -86,3 +107,61 @@ def test_tell_checks_shapes() -> None:
         me.tell_values(state, offspring, np.zeros(64), np.zeros((64, 3)))
     with pytest.raises(ValueError, match=r"fitnesses: expected shape \(64,\), got \(63,\)"):
         me.tell_values(state, offspring, np.zeros(63), np.zeros((64, 2)))
+
+
+def test_an_empty_repertoire_is_an_error_outside_jit_and_stays_empty_under_jit(
+    grid_loop: Loop,
+) -> None:
+    me = grid_loop.me
+    key = jax.random.PRNGKey(0)
+    genotypes = TASK.init_genotypes(key, 64)
+    fitnesses = np.full(64, np.nan, np.float32)
+    fitnesses[:3] = [np.inf, -np.inf, 1.0]
+    descriptors = np.full((64, 2), 0.5, np.float32)
+    descriptors[2] = [np.inf, 0.5]  # the one finite fitness has an infinite descriptor
+    with pytest.raises(
+        ValueError,
+        match=r"init: expected at least one initial evaluation with a finite fitness and a "
+        r"finite descriptor, got none of 64 \(63 non-finite fitnesses, 1 non-finite descriptors\)",
+    ):
+        me.init_values(genotypes, fitnesses, descriptors, key)
+    # Under jit nothing can raise: the repertoire is empty, and ask says so outside jit.
+    state = jax.jit(me.init_values)(genotypes, fitnesses, descriptors, key)
+    assert bool(state.repertoire.is_empty)
+    with pytest.raises(ValueError, match="ask: the repertoire is empty"):
+        me.ask(state)
+    # Jitted steps sample NaN parents, whose offspring are rejected: still empty, and the
+    # metrics show it (not a search silently restarted from zero genotypes).
+    state, metrics = grid_loop.run(state)
+    assert len(grid_loop.traces) == 1
+    assert bool(state.repertoire.is_empty) and int(state.evaluations) == 64 + 25 * 64
+    np.testing.assert_array_equal(np.asarray(metrics["coverage"]), 0.0)
+    np.testing.assert_array_equal(np.asarray(metrics["qd_score"]), 0.0)
+
+
+def test_scanned_metrics_travel_packed_and_come_back_exact() -> None:
+    """`run` packs the scalar metrics of an iteration into one vector: nothing is lost."""
+    from qdrl.qd.map_elites import _pack_scalars, _unpack_scalars
+
+    layout: list = []
+
+    def body(carry: None, i: jax.Array):  # type: ignore[no-untyped-def]
+        metrics = {
+            "count": jnp.int32(2**31 - 1) - i,  # not exact as a float32 value
+            "vector": jnp.ones(2) * i,  # not a scalar: stacked apart
+            "score": jnp.float32(np.nan) * i,
+            "low": jnp.float32(-np.inf) + i,
+            "unsigned": jnp.uint32(2**32 - 1) - i.astype(jnp.uint32),
+        }
+        return carry, _pack_scalars(metrics, layout)
+
+    _, (packed, rest) = jax.jit(lambda: jax.lax.scan(body, None, jnp.arange(3)))()
+    assert packed.shape == (3, 4) and packed.dtype == jnp.float32
+    out = _unpack_scalars(packed, rest, layout)
+    assert list(out) == ["count", "vector", "score", "low", "unsigned"]
+    assert out["count"].dtype == jnp.int32 and out["unsigned"].dtype == jnp.uint32
+    np.testing.assert_array_equal(np.asarray(out["count"]), [2**31 - 1, 2**31 - 2, 2**31 - 3])
+    np.testing.assert_array_equal(np.asarray(out["unsigned"]), [2**32 - 1, 2**32 - 2, 2**32 - 3])
+    np.testing.assert_array_equal(np.asarray(out["vector"]), [[0, 0], [1, 1], [2, 2]])
+    assert np.all(np.isnan(np.asarray(out["score"])))
+    np.testing.assert_array_equal(np.asarray(out["low"]), -np.inf)

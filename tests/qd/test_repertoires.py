@@ -2,6 +2,9 @@
 
 Insertion is checked against NumPy reference implementations on hypothesis-drawn
 batches; shapes are fixed so that each jitted `add` compiles once for the module.
+The drawn fitnesses include NaN, +-inf and subnormals, the drawn descriptors NaN
+and +-inf: the references reject every non-finite value and compare fitnesses with
+subnormals flushed to 0 (NumPy does not flush them; XLA on a CPU does).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from qdrl.qd.base import AddResult
+from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import (
     CellRepertoire,
     UnstructuredRepertoire,
@@ -32,12 +36,19 @@ from qdrl.qd.repertoires import (
     unstructured_repertoire,
     write_csv,
 )
+from qdrl.qd.repertoires.cells import flush_subnormals
 
 SETTINGS = settings(max_examples=25, deadline=None, database=None, derandomize=True)
 N = 16  # candidates per batch, fixed so that jitted adds compile once
 GRID_SHAPE = (4, 5)
 LOW, HIGH = (-1.0, 0.0), (1.0, 2.0)
-FITNESS_VALUES = [math.nan, -1.0, 0.0, 0.5, 1.0, 2.0, 3.0]  # few values: many ties
+SUBNORMAL = 4e-41  # a float32 subnormal: XLA on a CPU compares it equal to 0
+# Few values (many ties); the non-finite ones are rejected, the subnormals tie with 0.
+FITNESS_VALUES = [
+    math.nan, -1.0, 0.0, 0.5, 1.0, 2.0, 3.0, math.inf, -math.inf, SUBNORMAL, -SUBNORMAL
+]
+BAD_DESCRIPTOR_VALUES = (None,) * 7 + (math.nan, math.inf, -math.inf)  # None: finite
+TINY = np.finfo(np.float32).tiny
 
 # A haiku-like parameter tree; every leaf of a candidate holds its id.
 PARAMS_EXAMPLE = {
@@ -103,8 +114,20 @@ class Expected(NamedTuple):
     cell: np.ndarray
 
 
+def reference_flush(fitnesses):
+    """The repertoires' rule: subnormal fitnesses (and -0.0) count, and are stored, as +0.0."""
+    fitnesses = np.asarray(fitnesses, np.float32)
+    return np.where(np.abs(fitnesses) < TINY, np.float32(0.0), fitnesses)
+
+
+def reference_valid(descriptors, fitnesses):
+    """The repertoires' rule: finite fitness and finite descriptor."""
+    return np.isfinite(fitnesses) & np.all(np.isfinite(descriptors), axis=-1)
+
+
 def reference_cell_insert(store, cells, descriptors, fitnesses, ids):
     """Best-per-cell insertion, strictly-better replacement; cells[i] == -1 means rejected."""
+    fitnesses = reference_flush(fitnesses)
     store_f, store_d, store_ids = (x.copy() for x in store)
     n = len(fitnesses)
     added = np.zeros(n, bool)
@@ -128,6 +151,8 @@ def reference_cell_insert(store, cells, descriptors, fitnesses, ids):
 
 def reference_unstructured_insert(store, l_value, descriptors, fitnesses, ids):
     """Sequential novelty-threshold insertion with the second-nearest rule."""
+    valid = reference_valid(descriptors, fitnesses)
+    fitnesses = reference_flush(fitnesses)
     store_f, store_d, store_ids = (x.copy() for x in store)
     n = len(fitnesses)
     out = Expected(
@@ -135,7 +160,7 @@ def reference_unstructured_insert(store, l_value, descriptors, fitnesses, ids):
     )
     for i in range(n):
         f, d = fitnesses[i], descriptors[i]
-        if np.isnan(f) or np.any(np.isnan(d)):
+        if not valid[i]:
             continue
         filled = store_f > -np.inf
         dist = np.where(filled, np.sqrt(((store_d - d) ** 2).sum(-1)), np.inf)
@@ -146,9 +171,8 @@ def reference_unstructured_insert(store, l_value, descriptors, fitnesses, ids):
             out.improvement[i] = f
             if len(free):
                 out.cell[i] = free[0]
-                if f > -np.inf:
-                    out.added[i] = out.new_cell[i] = True
-                    store_f[free[0]], store_d[free[0]], store_ids[free[0]] = f, d, ids[i]
+                out.added[i] = out.new_cell[i] = True
+                store_f[free[0]], store_d[free[0]], store_ids[free[0]] = f, d, ids[i]
         else:
             out.cell[i] = nearest
             out.improvement[i] = f - store_f[nearest]
@@ -189,11 +213,19 @@ grid_candidate_st = st.tuples(
     st.floats(0.1, 0.9),  # position inside the bin, away from its edges
     st.floats(0.1, 0.9),
     fitness_st,
-    st.integers(0, 9).map(lambda v: v == 0),  # NaN descriptor, one time in ten
+    st.sampled_from(BAD_DESCRIPTOR_VALUES),  # NaN or +-inf in the descriptor, 3 times in 10
+    st.integers(0, 1),  # ... in this dimension
 )
 grid_batches_st = st.lists(
     st.lists(grid_candidate_st, min_size=N, max_size=N), min_size=1, max_size=3
 )
+
+
+def set_bad_descriptors(descriptors, candidates, at: int) -> None:
+    """Writes each candidate's drawn non-finite value (fields at, at + 1: value, dimension)."""
+    for i, c in enumerate(candidates):
+        if c[at] is not None:
+            descriptors[i, c[at + 1]] = c[at]
 
 
 def grid_batch(candidates, first_id: int):
@@ -201,12 +233,11 @@ def grid_batch(candidates, first_id: int):
     offsets = np.array([[c[2], c[3]] for c in candidates])
     width = (np.array(HIGH) - np.array(LOW)) / np.array(GRID_SHAPE)
     descriptors = (np.array(LOW) + (bins + offsets) * width).astype(np.float32)
-    nan_desc = np.array([c[5] for c in candidates])
-    descriptors[nan_desc, 1] = np.nan
+    set_bad_descriptors(descriptors, candidates, 5)
     fitnesses = np.array([c[4] for c in candidates], np.float32)
     clipped = np.clip(bins, 0, np.array(GRID_SHAPE) - 1)
     cells = clipped[:, 0] * GRID_SHAPE[1] + clipped[:, 1]
-    cells = np.where(np.isnan(fitnesses) | nan_desc, -1, cells)
+    cells = np.where(reference_valid(descriptors, fitnesses), cells, -1)
     ids = first_id + np.arange(len(candidates))
     return descriptors, fitnesses, cells, ids
 
@@ -216,6 +247,8 @@ cvt_candidate_st = st.tuples(
     st.floats(-0.2, 0.2),  # |offset| < 0.25 = half the minimum centroid distance
     st.floats(-0.17, 0.17),
     fitness_st,
+    st.sampled_from(BAD_DESCRIPTOR_VALUES),
+    st.integers(0, 1),
 )
 cvt_batches_st = st.lists(
     st.lists(cvt_candidate_st, min_size=N, max_size=N), min_size=1, max_size=3
@@ -282,23 +315,61 @@ def test_ties_keep_lowest_index_and_equal_never_replaces():
     assert int(rep.genotypes["tag"][cell]) == 12 and float(result.improvement[0]) == 0.5
 
 
-@pytest.mark.parametrize("kind", ["grid", "cvt", "unstructured"])
-def test_nan_fitness_and_nan_descriptors_are_rejected(kind):
-    rep = make_repertoire(kind, PARAMS_EXAMPLE)
-    descriptors = jnp.array([[0.1, 0.1], [0.1, jnp.nan], [jnp.nan, jnp.nan], [0.5, 0.5]])
-    fitnesses = jnp.array([jnp.nan, 1.0, 2.0, jnp.nan])
-    new, result = add_padded(rep, np.arange(1, 5), descriptors, fitnesses)
-    np.testing.assert_array_equal(np.asarray(result.cell), [-1, -1, -1, -1])
-    assert not bool(jnp.any(result.added)) and not bool(jnp.any(result.new_cell))
-    assert bool(jnp.all(result.improvement == -jnp.inf))
-    assert bool(new.is_empty) and int(new.num_filled) == 0
-    np.testing.assert_array_equal(np.asarray(new.fitnesses), np.asarray(rep.fitnesses))
+NON_FINITE_DESCRIPTORS = [[np.inf, 0.0], [-np.inf, 0.0], [0.5, np.inf], [np.nan, 0.5]]
+
+
+@pytest.mark.parametrize("kind", ["grid", "cvt", "cvt_lookup", "unstructured", "passive"])
+def test_non_finite_fitnesses_and_descriptors_are_rejected(kind):
+    rep = make_repertoire(kind, None if kind == "passive" else PARAMS_EXAMPLE)
+    ids = None if kind == "passive" else np.arange(1, 11)
+    # +inf, -inf and NaN fitnesses at a good descriptor; then non-finite descriptors
+    # (which a CVT search would send to centroid 0) with a good fitness.
+    descriptors = np.array([[0.1, 0.1]] * 3 + NON_FINITE_DESCRIPTORS + [[0.1, 0.1]] * 3, np.float32)
+    fitnesses = np.array([np.inf, -np.inf, np.nan] + [1.0] * 4 + [np.inf, np.nan, 1.0], np.float32)
+    descriptors[8, 0] = np.inf  # a NaN fitness AND an infinite descriptor
+    new, result = add_padded(rep, ids, descriptors, fitnesses)
+    np.testing.assert_array_equal(np.asarray(result.cell)[:9], [-1] * 9)
+    assert not bool(jnp.any(result.added[:9])) and not bool(jnp.any(result.new_cell[:9]))
+    assert bool(jnp.all(result.improvement[:9] == -jnp.inf))
+    # Only the last, finite candidate is stored; the metrics stay finite.
+    assert bool(result.added[9]) and int(new.num_filled) == 1
+    assert np.all(np.isfinite(np.asarray(new.fitnesses)) | (np.asarray(new.fitnesses) == -np.inf))
+    metrics = qd_metrics(new, qd_offset=-1.0)
+    assert float(metrics["qd_score"]) == 2.0 and float(metrics["max_fitness"]) == 1.0
+    # Its cell can still be improved (a stored +inf could never be).
+    new, result = add_padded(new, None if ids is None else ids[:1], descriptors[9:], [1.5])
+    assert bool(result.added[0]) and float(jnp.max(new.fitnesses)) == 1.5
 
 
 def test_minus_inf_fitness_is_never_stored():
     rep = grid_repertoire(None, GRID_SHAPE, LOW, HIGH)
     rep, result = add_padded(rep, None, np.zeros((1, 2)) + 0.5, [-np.inf])
     assert not bool(result.added[0]) and bool(rep.is_empty)
+
+
+def test_flush_subnormals_maps_them_and_minus_zero_to_plus_zero():
+    x = jnp.array([SUBNORMAL, -SUBNORMAL, 1e-45, -0.0, TINY, -TINY, 1.0, np.inf, np.nan])
+    got = np.asarray(jax.jit(flush_subnormals)(x))
+    np.testing.assert_array_equal(got[:4], 0.0)
+    assert not np.any(np.signbit(got[:4]))  # +0.0, never -0.0
+    np.testing.assert_array_equal(got[4:8], [TINY, -TINY, 1.0, np.inf])
+    assert np.isnan(got[8])
+
+
+@pytest.mark.parametrize("kind", ["grid", "cvt", "unstructured"])
+def test_subnormal_fitnesses_compare_as_zero(kind):
+    """The same rule on every backend: a subnormal ties with 0, the first of a tie wins."""
+    rep = make_repertoire(kind, PARAMS_EXAMPLE)
+    d = np.array([[0.1, 0.1]] * 3, np.float32)
+    rep, result = add_padded(rep, np.array([1, 2, 3]), d, [-SUBNORMAL, SUBNORMAL, 0.0])
+    np.testing.assert_array_equal(np.asarray(result.added), [True, False, False])
+    cell = int(result.cell[0])
+    stored = np.asarray(rep.fitnesses)[cell]
+    assert stored == 0.0 and not np.signbit(stored) and int(rep.genotypes["tag"][cell]) == 1
+    # A larger subnormal is not strictly better than the stored 0; a normal float is.
+    rep, result = add_padded(rep, np.array([4, 5]), d[:2], [1e-39, 2 * TINY])
+    np.testing.assert_array_equal(np.asarray(result.added), [False, True])
+    np.testing.assert_array_equal(np.asarray(result.improvement), [0.0, 2 * TINY])
 
 
 # --- CVT --------------------------------------------------------------------------
@@ -308,15 +379,23 @@ def cvt_batch(candidates, first_id: int):
     cells = np.array([c[0] for c in candidates])
     offsets = np.array([[c[1], c[2]] for c in candidates])
     descriptors = (CVT_CENTROIDS[cells] + offsets).astype(np.float32)
+    set_bad_descriptors(descriptors, candidates, 4)
     fitnesses = np.array([c[3] for c in candidates], np.float32)
-    cells = np.where(np.isnan(fitnesses), -1, cells)
+    cells = np.where(reference_valid(descriptors, fitnesses), cells, -1)
     return descriptors, fitnesses, cells, first_id + np.arange(len(candidates))
 
 
+# A box around the fixture's centroids: candidates (within 0.2 of a centroid) fall
+# inside and outside it, so the lookup grid's brute-force fallback is exercised too.
+CVT_LOW, CVT_HIGH = (0.0, 0.0), (1.5, 1.0)
+
+
 @SETTINGS
-@given(batches=cvt_batches_st)
-def test_cvt_add_matches_numpy_reference(batches):
-    rep = cvt_repertoire(PARAMS_EXAMPLE, CVT_CENTROIDS)
+@given(batches=cvt_batches_st, lookup=st.booleans())
+def test_cvt_add_matches_numpy_reference(batches, lookup):
+    bounds = (CVT_LOW, CVT_HIGH) if lookup else (None, None)
+    rep = cvt_repertoire(PARAMS_EXAMPLE, CVT_CENTROIDS, *bounds)
+    assert (rep.lookup is not None) == lookup
     store = empty_store(rep)
     for b, candidates in enumerate(batches):
         descriptors, fitnesses, cells, ids = cvt_batch(candidates, 1 + 100 * b)
@@ -373,11 +452,18 @@ def test_cvt_centroids_scalar_bounds_and_errors():
 # --- unstructured -------------------------------------------------------------------
 
 L_VALUE = 0.25  # descriptors on a 0.1 lattice: no squared distance equals 0.0625
-unstructured_candidate_st = st.tuples(st.integers(0, 10), st.integers(0, 10), fitness_st)
+unstructured_candidate_st = st.tuples(
+    st.integers(0, 10),
+    st.integers(0, 10),
+    fitness_st,
+    st.sampled_from(BAD_DESCRIPTOR_VALUES),
+    st.integers(0, 1),
+)
 
 
 def unstructured_batch(candidates, first_id: int):
     descriptors = np.array([[c[0], c[1]] for c in candidates], np.float32) * np.float32(0.1)
+    set_bad_descriptors(descriptors, candidates, 3)
     fitnesses = np.array([c[2] for c in candidates], np.float32)
     return descriptors, fitnesses, first_id + np.arange(len(candidates))
 
@@ -449,6 +535,10 @@ def make_repertoire(kind: str, genotype_example):
         return grid_repertoire(genotype_example, GRID_SHAPE, LOW, HIGH)
     if kind == "cvt":
         return cvt_repertoire(genotype_example, CVT_CENTROIDS)
+    if kind == "cvt_lookup":
+        return cvt_repertoire(genotype_example, CVT_CENTROIDS, CVT_LOW, CVT_HIGH)
+    if kind == "passive":
+        return passive_archive("cvt", centroids=CVT_CENTROIDS)
     return unstructured_repertoire(genotype_example, 24, 2, L_VALUE)
 
 
@@ -473,12 +563,15 @@ def test_sample_draws_only_filled_cells_uniformly(kind):
 
 
 @pytest.mark.parametrize("kind", ["grid", "cvt", "unstructured"])
-def test_sample_empty_repertoire_returns_zero_genotypes(kind):
+def test_sample_empty_repertoire_returns_nan_genotypes(kind):
+    """Jitted code cannot raise: an empty repertoire's samples are NaN (ints 0), never zeros."""
     rep = make_repertoire(kind, PARAMS_EXAMPLE)
     assert bool(rep.is_empty) and int(rep.num_filled) == 0
     samples = jax.jit(lambda r, k: r.sample(k, 5))(rep, jax.random.key(1))
     assert samples["linear"]["w"].shape == (5, 2, 3)
-    assert all(bool(jnp.all(leaf == 0)) for leaf in jax.tree_util.tree_leaves(samples))
+    assert bool(jnp.all(jnp.isnan(samples["linear"]["w"])))
+    assert bool(jnp.all(jnp.isnan(samples["linear"]["b"])))
+    np.testing.assert_array_equal(np.asarray(samples["tag"]), 0)
 
 
 @pytest.mark.parametrize("kind", ["grid", "cvt", "unstructured"])
@@ -658,7 +751,7 @@ def test_repertoire_is_a_frozen_pytree():
 
 def test_cvt_lookup_grid_is_exact_and_used() -> None:
     """The lookup grid gives the brute-force nearest centroid, inside and outside the box."""
-    from qdrl.qd.repertoires.lookup import brute_nearest
+    from qdrl.qd.repertoires.lookup import brute_nearest, direct_nearest
 
     centroids = cvt_centroids(jax.random.PRNGKey(3), 300, 6_000, (0.0, -1.0), (2.0, 1.0))
     fast = cvt_repertoire(None, centroids, (0.0, -1.0), (2.0, 1.0))
@@ -675,3 +768,23 @@ def test_cvt_lookup_grid_is_exact_and_used() -> None:
     np.testing.assert_allclose(d_got, d_want, rtol=1e-5, atol=1e-9)
     assert np.mean(got == want) > 0.999
     np.testing.assert_array_equal(np.asarray(slow.cell_index(points)), want)
+    # The search used off the CPU: the same cells (up to float32 near-ties).
+    direct = np.asarray(jax.jit(direct_nearest)(points, fast.centroids))
+    np.testing.assert_allclose(((p - c[direct]) ** 2).sum(-1), d_want, rtol=1e-5, atol=1e-9)
+    assert np.mean(direct == want) > 0.999
+
+
+def test_cvt_search_is_chosen_per_backend_when_lowered() -> None:
+    """CPU: the lookup grid (gathers, and a lax.cond for points outside the box);
+    GPU: the direct search, with no conditional (a host round trip on a GPU)."""
+    centroids = cvt_centroids(jax.random.PRNGKey(3), 64, 2_000, (0.0, 0.0), (1.0, 1.0))
+    rep = cvt_repertoire(None, centroids, (0.0, 0.0), (1.0, 1.0))
+    points = jnp.zeros((8, 2))
+
+    def lowered(platform: str) -> str:
+        traced = jax.jit(rep.cell_index).trace(points)
+        return traced.lower(lowering_platforms=(platform,)).as_text(dialect="hlo")
+
+    cpu, cuda = lowered("cpu"), lowered("cuda")
+    assert " conditional(" in cpu and " gather(" in cpu
+    assert " conditional(" not in cuda and " gather(" not in cuda and " dot(" not in cuda

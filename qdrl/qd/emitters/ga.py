@@ -239,19 +239,29 @@ class GAEmitter:
         return None
 
     def emit(self, state: None, repertoire: Repertoire, key: PRNGKey) -> Genotype:
-        """`batch_size` offspring: variations first, then mutations."""
+        """`batch_size` offspring: variations first, then mutations.
+
+        Keys: `sample_key, key_variation, key_mutation = split(key, 3)`. All parents
+        come from ONE `repertoire.sample(sample_key, 2 * num_variation +
+        num_mutation)`: the first `num_variation` are the first parents of the
+        variations, the next `num_variation` their second parents, the rest the
+        mutated ones (one draw instead of three: fewer kernels on a GPU).
+        """
         del state
-        key_1, key_2, key_variation, key_3, key_mutation = jax.random.split(key, 5)
+        sample_key, key_variation, key_mutation = jax.random.split(key, 3)
+        nv, nm = self.num_variation, self.num_mutation
+        parents = repertoire.sample(sample_key, 2 * nv + nm)
+
+        def rows(start: int, stop: int) -> Genotype:
+            return jax.tree.map(lambda x: x[start:stop], parents)
+
         parts = []
-        if self.num_variation > 0:
+        if nv > 0:
             assert self.variation_fn is not None
-            x1 = repertoire.sample(key_1, self.num_variation)
-            x2 = repertoire.sample(key_2, self.num_variation)
-            parts.append(self.variation_fn(x1, x2, key_variation))
-        if self.num_mutation > 0:
+            parts.append(self.variation_fn(rows(0, nv), rows(nv, 2 * nv), key_variation))
+        if nm > 0:
             assert self.mutation_fn is not None
-            x = repertoire.sample(key_3, self.num_mutation)
-            parts.append(self.mutation_fn(x, key_mutation))
+            parts.append(self.mutation_fn(rows(2 * nv, 2 * nv + nm), key_mutation))
         return concat_batches(parts)
 
     def update(

@@ -37,10 +37,9 @@ import numpy as np
 from qdrl.qd.base import AddResult
 from qdrl.qd.repertoires.lookup import (
     Lookup,
-    brute_nearest,
     build_lookup,
     grid_bins,
-    lookup_nearest,
+    nearest,
 )
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
@@ -49,6 +48,7 @@ __all__ = [
     "as_bounds",
     "check_batch",
     "cvt_repertoire",
+    "flush_subnormals",
     "grid_centroids",
     "grid_repertoire",
     "init_storage",
@@ -106,30 +106,75 @@ def grid_centroids(
     return np.stack([m.reshape(-1) for m in mesh], axis=-1).astype(np.float32)
 
 
+def _filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> tuple[Array, Array]:
+    """(indices, number of filled cells): see `sample_filled_indices`."""
+    num_cells = filled.shape[0]
+    cell = jnp.arange(num_cells, dtype=jnp.int32)
+    counts = jnp.cumsum(filled.astype(jnp.int32))
+    total = counts[-1]
+    # The filled cells in order: filled cell c goes to slot counts[c] - 1; empty cells
+    # go to distinct out-of-range slots, dropped (so every index is unique).
+    slot = jnp.where(filled, counts - 1, num_cells + cell)
+    compact = jnp.zeros((num_cells,), jnp.int32).at[slot].set(
+        cell, mode="drop", unique_indices=True
+    )
+    bits = jax.random.bits(key, (num_samples,), jnp.uint32)
+    ranks = bits % jnp.maximum(total, 1).astype(jnp.uint32)
+    return jnp.where(total > 0, compact[ranks.astype(jnp.int32)], 0), total
+
+
 def sample_filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> Array:
     """`num_samples` cell indices drawn uniformly, with replacement, among the filled cells.
 
-    Exact integer arithmetic: a uniform rank in `[0, num_filled)` is mapped to the
-    cell holding that rank by a search in the cumulative count of filled cells. When
-    no cell is filled, every index is 0 (callers check `num_filled`/`is_empty`;
-    jitted code cannot raise).
+    A rank in `[0, num_filled)` (32 random bits modulo num_filled: the ranks'
+    probabilities differ by less than num_filled / 2^32 relative, 2.4e-6 for 10^4
+    filled cells) picks an entry of the list of filled cells, built by one scatter
+    of the cells to their rank among the filled ones (a cumulative count). No
+    search: a `jnp.searchsorted` is a `while` loop whose log2(C) steps each launch
+    kernels on a GPU. When no cell is filled, every index is 0 (callers check
+    `num_filled`/`is_empty`, or use `sample_filled`; jitted code cannot raise).
     """
-    counts = jnp.cumsum(filled.astype(jnp.int32))
-    total = counts[-1]
-    ranks = jax.random.randint(key, (num_samples,), 0, jnp.maximum(total, 1))
-    # First cell whose cumulative count exceeds the rank, i.e. the (rank+1)-th filled cell.
-    idx = jnp.searchsorted(counts, ranks, side="right").astype(jnp.int32)
-    return jnp.where(total > 0, idx, 0)
+    return _filled_indices(key, filled, num_samples)[0]
+
+
+def sample_filled(key: PRNGKey, genotypes: Genotype, filled: Array, num_samples: int) -> Genotype:
+    """`num_samples` rows of `genotypes` drawn uniformly, with replacement, among the filled ones.
+
+    An EMPTY store gives NaN in every floating-point leaf (0 in integer leaves), not
+    the zeros of an empty row: offspring built from them evaluate to NaN and are
+    rejected, so a run whose repertoire is empty stays visibly empty (coverage 0)
+    instead of searching from zero genotypes. Outside jit, `MapElites.ask` raises
+    on an empty repertoire before sampling it.
+    """
+    idx, total = _filled_indices(key, filled, num_samples)
+
+    def take(x: Array) -> Array:
+        rows = x[idx]
+        if jnp.issubdtype(rows.dtype, jnp.floating):
+            rows = jnp.where(total > 0, rows, jnp.asarray(jnp.nan, rows.dtype))
+        return rows
+
+    return jax.tree_util.tree_map(take, genotypes)
 
 
 def nearest_centroid(points: Array, centroids: Array) -> Array:
     """(n,) int32 index of the nearest centroid (squared Euclidean) of each point (n, D).
 
-    One (n, C) matmul: |x - c|^2 = |x|^2 - 2 x.c + |c|^2, where |x|^2 is the same
-    for every centroid of a row and drops out of the argmin. HIGHEST precision keeps
-    GPUs off TF32 for the cross term, which would misplace points near cell borders.
+    By brute force, in the form that suits the backend (`lookup.nearest`).
     """
-    return brute_nearest(points, centroids)
+    return nearest(points, centroids, None)
+
+
+def flush_subnormals(fitnesses: Array) -> Array:
+    """`fitnesses` with subnormal values (|f| < 1.18e-38) and -0.0 replaced by +0.0.
+
+    XLA on a CPU flushes subnormals to zero in arithmetic and comparisons, a GPU may
+    not: without this, 4e-41 > 0 would hold on one backend and not on the other, and
+    "keep the best" would pick differently. Flushing first gives every backend the
+    same rule, and the stored fitness is the flushed one.
+    """
+    tiny = jnp.finfo(jnp.float32).tiny
+    return jnp.where(jnp.abs(fitnesses) < tiny, jnp.zeros_like(fitnesses), fitnesses)
 
 
 def check_batch(
@@ -142,7 +187,8 @@ def check_batch(
 ) -> tuple[Array, Array]:
     """Checks a candidate batch against a repertoire's storage; returns float32 (descriptors, fitnesses).
 
-    Shapes are static, so this runs at trace time and costs nothing under jit.
+    The returned fitnesses have their subnormals flushed to 0 (`flush_subnormals`).
+    Shapes are static, so the checks run at trace time and cost nothing under jit.
     """
     fitnesses = jnp.asarray(fitnesses, jnp.float32)
     descriptors = jnp.asarray(descriptors, jnp.float32)
@@ -172,12 +218,18 @@ def check_batch(
                 f"{where}: genotypes leaf {name} must have shape {want} (a leading batch "
                 f"axis of n={n}, then the genotype's shape), got {shape}"
             )
-    return descriptors, fitnesses
+    return descriptors, flush_subnormals(fitnesses)
 
 
 def valid_candidates(descriptors: Array, fitnesses: Array) -> Array:
-    """(n,) bool: candidates with a non-NaN fitness and no NaN in their descriptor."""
-    return ~jnp.isnan(fitnesses) & ~jnp.any(jnp.isnan(descriptors), axis=-1)
+    """(n,) bool: candidates with a finite fitness and a finite descriptor.
+
+    NaN marks a failed evaluation; +-inf fitnesses and descriptors are rejected too:
+    a stored +inf would make the QD score infinite for the rest of the run and its
+    cell could never be improved, and a non-finite descriptor has no place in
+    descriptor space (a CVT archive without bounds has nothing to clip it to).
+    """
+    return jnp.isfinite(fitnesses) & jnp.all(jnp.isfinite(descriptors), axis=-1)
 
 
 def write_rows(storage: Genotype, target: Array, rows: Genotype) -> Genotype:
@@ -256,7 +308,7 @@ class CellRepertoire:
 
     @property
     def is_empty(self) -> Array:
-        """() bool, True when no cell is filled (then `sample` returns cell 0's zeros)."""
+        """() bool, True when no cell is filled (then `sample` returns NaN genotypes)."""
         return self.num_filled == 0
 
     def cell_index(self, descriptors: Descriptor) -> Array:
@@ -264,17 +316,15 @@ class CellRepertoire:
 
         Grid: bin `floor((d - low) / (high - low) * grid_shape)` per dimension, clipped
         to `[0, grid_shape - 1]`, then raveled in row-major order. CVT: the nearest
-        centroid (squared Euclidean distance through one matmul; any point of space,
-        inside the box or not, has a nearest centroid). Rows holding NaN get an
+        centroid (any point of space, inside the box or not, has one; see
+        `lookup.nearest` for how it is searched). Rows holding NaN or +-inf get an
         arbitrary cell; `add` rejects them before indexing matters.
         """
         descriptors = jnp.asarray(descriptors, jnp.float32)
         if self.grid_shape is not None:
             assert self.low is not None and self.high is not None
             return grid_bins(descriptors, self.grid_shape, self.low, self.high)
-        if self.lookup is not None:
-            return lookup_nearest(descriptors, self.centroids, self.lookup)
-        return nearest_centroid(descriptors, self.centroids)
+        return nearest(descriptors, self.centroids, self.lookup)
 
     def add(
         self, genotypes: Genotype, descriptors: Descriptor, fitnesses: Fitness
@@ -282,15 +332,18 @@ class CellRepertoire:
         """Offers a batch of n candidates; each cell keeps the best elite it was ever offered.
 
         Rules (jittable, fixed shapes):
-        - a candidate whose fitness or descriptor contains NaN is rejected (cell -1,
-          never stored);
-        - descriptors outside the grid's bounds are CLIPPED to the edge cells (CVT:
-          the nearest centroid, which is an edge cell for far-away points); the
+        - a candidate whose fitness or descriptor is not finite (NaN, +inf, -inf) is
+          rejected (cell -1, never stored);
+        - subnormal fitnesses are flushed to 0 before any comparison, so that every
+          backend compares alike (`flush_subnormals`); the stored fitness is the
+          flushed one;
+        - finite descriptors outside the grid's bounds are CLIPPED to the edge cells
+          (CVT: the nearest centroid, which is an edge cell for far-away points); the
           stored descriptor is the candidate's own, unclipped one;
         - among the candidates of one batch falling in the same cell, the fittest is
           kept, ties broken by the lowest batch index;
         - it replaces the cell's elite only if STRICTLY fitter (an equal or worse
-          candidate never replaces an elite; a fitness of -inf is never stored).
+          candidate never replaces an elite).
 
         Args:
           genotypes: pytree whose leaves have a leading axis n and otherwise match
@@ -328,13 +381,17 @@ class CellRepertoire:
         )
         old_fit = jnp.where(valid, self.fitnesses[jnp.clip(cell, 0)], -jnp.inf)
         old_filled = old_fit > -jnp.inf
-        added = is_best & (winner[segment] == index) & (fit > old_fit)
+        # The winner of a segment is valid and fittest (a rejected candidate's
+        # segment, num_cells, has no winner below n).
+        added = (winner[segment] == index) & (fit > old_fit)
         # At most one writer per cell, so the scatter is deterministic; losers are dropped.
         target = jnp.where(added, cell, num_cells)
         new = dataclasses.replace(
             self,
             genotypes=write_rows(self.genotypes, target, genotypes),
-            fitnesses=self.fitnesses.at[target].set(fit, mode="drop"),
+            # A cell's new fitness is its batch best where that is strictly better:
+            # an elementwise max over the cells, one scatter fewer than writing it.
+            fitnesses=jnp.maximum(self.fitnesses, batch_best[:num_cells]),
             descriptors=self.descriptors.at[target].set(descriptors, mode="drop"),
         )
         result = AddResult(
@@ -424,11 +481,10 @@ class CellRepertoire:
         """`num_samples` genotypes drawn uniformly, with replacement, among the filled cells.
 
         Sampling an EMPTY repertoire does not fail (jitted code cannot raise): it
-        returns `num_samples` copies of cell 0's genotype, i.e. zeros. Check
-        `is_empty` / `num_filled` before relying on the samples.
+        returns NaN in every floating-point leaf (`sample_filled`), whose offspring
+        are rejected when evaluated. Check `is_empty` / `num_filled` first.
         """
-        idx = sample_filled_indices(key, self.filled, num_samples)
-        return jax.tree_util.tree_map(lambda x: x[idx], self.genotypes)
+        return sample_filled(key, self.genotypes, self.filled, num_samples)
 
 
 jax.tree_util.register_dataclass(
@@ -492,8 +548,8 @@ def cvt_repertoire(
         genotype).
       centroids: (C, D) centroids, e.g. from `qdrl.qd.repertoires.cvt.cvt_centroids`.
       low, high: the descriptor box. When given (and D <= 3), an exact lookup grid
-        replaces the brute-force nearest-centroid search inside the box (see
-        `lookup.py`); the cells are the same either way.
+        replaces the brute-force nearest-centroid search inside the box on the CPU
+        (see `lookup.py`); the cells are the same either way.
 
     Returns:
       A `CellRepertoire` of C empty cells.

@@ -5,7 +5,9 @@ policies it evaluates to a passive archive, so that QD metrics (QD score,
 coverage, max fitness; `qdrl.qd.metrics.qd_metrics`) are computed the same way for
 all of them (QDax paper, comparison of SMERL with MAP-Elites and PGA-ME). A passive
 archive is a `CellRepertoire` whose genotypes are `None`: it is never sampled by
-emitters (sampling it would return `None`) and never drives the search.
+emitters (sampling it would return `None`) and never drives the search. Like every
+repertoire it rejects evaluations whose fitness or descriptor is not finite (NaN,
++inf, -inf), so one diverged rollout cannot make the metrics infinite.
 """
 
 from __future__ import annotations
@@ -53,8 +55,10 @@ def passive_archive(
 def observe(archive: _Archive, descriptors: Descriptor, fitnesses: Fitness) -> _Archive:
     """The archive after offering it n evaluations (descriptors (n, D), fitnesses (n,)); jittable.
 
-    Same rules as `add` (NaN rejected, best per cell, strictly better replaces); the
-    per-candidate `AddResult` is dropped. The archive must store no genotype.
+    Same rules as `add`: a fitness or descriptor that is not finite (NaN, +-inf) is
+    rejected, subnormal fitnesses count as 0, best per cell, strictly better
+    replaces. The per-candidate `AddResult` is dropped. The archive must store no
+    genotype.
     """
     if archive.genotypes is not None:
         raise ValueError("observe is for passive archives (genotypes None); use add instead")

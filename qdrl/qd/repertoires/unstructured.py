@@ -8,7 +8,9 @@ adapts the threshold `l_value` to control the container's size).
 Insertion rule, candidate by candidate (the batch is processed sequentially with
 `jax.lax.scan`, so later candidates of a batch see the earlier ones):
 
-- NaN fitness or descriptor, or fitness -inf: rejected, never stored;
+- a fitness or descriptor that is not finite (NaN, +inf, -inf): rejected, never
+  stored; subnormal fitnesses are flushed to 0 before comparing (as in every
+  repertoire, `qdrl.qd.repertoires.cells.flush_subnormals`);
 - NOVEL (distance to the nearest stored descriptor >= `l_value`, or the repertoire
   is empty): stored in the first free slot; rejected when the container is full;
 - otherwise it competes with its nearest elite and REPLACES it only if strictly
@@ -29,7 +31,7 @@ from qdrl.qd.base import AddResult
 from qdrl.qd.repertoires.cells import (
     check_batch,
     init_storage,
-    sample_filled_indices,
+    sample_filled,
     valid_candidates,
     write_rows,
 )
@@ -83,7 +85,7 @@ class UnstructuredRepertoire:
 
     @property
     def is_empty(self) -> Array:
-        """() bool, True when nothing is stored (then `sample` returns slot 0's zeros)."""
+        """() bool, True when nothing is stored (then `sample` returns NaN genotypes)."""
         return self.num_filled == 0
 
     def with_l_value(self, l_value: float | Array) -> UnstructuredRepertoire:
@@ -99,8 +101,8 @@ class UnstructuredRepertoire:
           The new repertoire and an `AddResult`: `added`, `new_cell` (stored in a free
           slot as a novel elite), `improvement` (fitness minus the nearest elite's when
           it competed with it, the fitness itself when novel, -inf when rejected for
-          NaN), `cell` (the slot it was stored in or competed for; -1 when rejected
-          for NaN or novel with no free slot).
+          a non-finite value), `cell` (the slot it was stored in or competed for; -1
+          when rejected for a non-finite value or novel with no free slot).
         """
         descriptors, fitnesses = check_batch(
             self.genotypes, self.descriptor_dim, genotypes, descriptors, fitnesses, "add"
@@ -122,7 +124,7 @@ class UnstructuredRepertoire:
             free_slot = jnp.argmin(filled).astype(jnp.int32)  # first free slot, if any
             has_space = ~filled[free_slot]
             rival = store_f[nearest]
-            add_new = ok & novel & has_space & (f > -jnp.inf)
+            add_new = ok & novel & has_space
             replace = ok & ~novel & (f > rival) & (sq_second >= sq_l)
             added = add_new | replace
             slot = jnp.where(novel, jnp.where(has_space, free_slot, -1), nearest)
@@ -151,11 +153,10 @@ class UnstructuredRepertoire:
     def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
         """`num_samples` genotypes drawn uniformly, with replacement, among the stored elites.
 
-        Sampling an EMPTY repertoire does not fail: it returns copies of slot 0's
-        genotype (zeros). Check `is_empty` / `num_filled` first.
+        Sampling an EMPTY repertoire does not fail: it returns NaN in every
+        floating-point leaf (`sample_filled`). Check `is_empty` / `num_filled` first.
         """
-        idx = sample_filled_indices(key, self.filled, num_samples)
-        return jax.tree_util.tree_map(lambda x: x[idx], self.genotypes)
+        return sample_filled(key, self.genotypes, self.filled, num_samples)
 
 
 jax.tree_util.register_dataclass(
