@@ -346,7 +346,10 @@ class GAConfig:
     """
 
     kind: GAKind = "isoline"
-    batch_size: PositiveInt = 1024  # offspring per iteration
+    batch_size: PositiveInt = 1024  # offspring per iteration (of each instance)
+    # Copies of this GA: arms of the bandit in a pool ([[emitters]]); alone, they make
+    # num_instances x batch_size offspring together.
+    num_instances: PositiveInt = 1
     iso_sigma: NonNegativeFloat = 0.05  # isoline: isotropic Gaussian noise (Vassiliades & Mouret 2018)
     line_sigma: NonNegativeFloat = 0.1  # isoline: noise along the line between two parents
     variation_percentage: UnitFloat = 1.0  # share of the batch made by crossover/variation
@@ -362,12 +365,12 @@ class GAConfig:
 def ga_emitter(
     config: GAConfig, genotype_low: float, genotype_high: float, batch_size: int | None = None
 ) -> GAEmitter:
-    """The GA of `config` with `batch_size` offspring (default `config.batch_size`).
+    """The GA of `config` with `batch_size` offspring (default: num_instances x batch_size).
 
     Offspring are clipped to finite genotype bounds (an infinite bound clips
     nothing); polynomial mutation needs finite bounds.
     """
-    n = config.batch_size if batch_size is None else batch_size
+    n = config.num_instances * config.batch_size if batch_size is None else batch_size
     if config.kind == "isoline":
         lo = genotype_low if math.isfinite(genotype_low) else None
         hi = genotype_high if math.isfinite(genotype_high) else None

@@ -12,8 +12,8 @@ of its task (`EmitterContext`):
 | `cma_mega` | CMA-MEGA (`mega.py`; asks the task for its gradients at theta) | `CMAMegaConfig` |
 
 A list of kinds is a pool under the bandit scheduler (`scheduler.py`): every
-member must have an instance axis (all kinds but `omg_mega`; a GA is one
-instance) and the same number of offspring per instance.
+member must have an instance axis (all kinds but `omg_mega`; a GA's instances
+are copies of it) and the same number of offspring per instance.
 """
 
 from __future__ import annotations
@@ -216,12 +216,15 @@ def build_emitter(config: Any, ctx: EmitterContext, section: str = "emitter") ->
 def build_pool(
     configs: Sequence[Any], scheduler: SchedulerConfig, ctx: EmitterContext, section: str = "emitters"
 ) -> BanditScheduler:
-    """The bandit scheduler over the emitters of checked `configs` (a GA is one instance)."""
+    """The bandit scheduler over the emitters of checked `configs` (a GA: num_instances copies)."""
     check_pool(configs, scheduler, section)
     pool: list[InstancedEmitter] = []
     for i, config in enumerate(configs):
-        emitter = build_emitter(config, ctx, f"{section}[{i}]")
-        pool.append(StatelessInstances(emitter, 1) if config.kind in GA_KINDS else emitter)
+        if config.kind in GA_KINDS:  # stateless: copies of one GA of batch_size offspring
+            ga = ga_emitter(config, ctx.genotype_low, ctx.genotype_high, config.batch_size)
+            pool.append(StatelessInstances(ga, config.num_instances))
+        else:
+            pool.append(build_emitter(config, ctx, f"{section}[{i}]"))
     return BanditScheduler(tuple(pool), scheduler)
 
 
