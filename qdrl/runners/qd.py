@@ -28,7 +28,7 @@ from qdrl.config import (
     check_params,
     check_table,
 )
-from qdrl.experiment import ExperimentConfig, Sections, register, scalar
+from qdrl.experiment import ARRAY_SECTIONS, ExperimentConfig, Sections, register, scalar
 from qdrl.lapack_threads import single_threaded_lapack
 from qdrl.qd.emitters.dcrl import DCRLConfig
 from qdrl.qd.emitters.ga import GAConfig, ga_emitter
@@ -225,7 +225,7 @@ def parse_qd(
         if "emitter" in spec:
             raise ConfigError("emitter: give either one [emitter] or a pool of [[emitters]], not both")
         tables = spec["emitters"]
-        if not isinstance(tables, list) or not tables:
+        if not (isinstance(tables, list) and tables and all(isinstance(t, Mapping) for t in tables)):
             raise ConfigError(
                 "emitters: expected a list of tables ([[emitters]] followed by key = value lines), "
                 f"got {tables!r}"
@@ -465,6 +465,7 @@ def _restarts(emitter_state: Any) -> int | None:
     return None if restarts is None else int(np.asarray(restarts).sum())
 
 
+ARRAY_SECTIONS.add("emitters")
 register("map_elites", functools.partial(parse_qd, default_kind="grid"), QDRun)
 register("cvt_map_elites", functools.partial(parse_qd, default_kind="cvt"), QDRun)
 for _name, _family in FAMILIES.items():
