@@ -92,9 +92,6 @@ class RepertoireConfig:
         return self.learning_rate < 1.0 or self.threshold_min > -math.inf
 
 
-EmitterConfig = GAConfig  # the `[emitter]` of MAP-Elites (and the GA of PGA-ME, QD-PG, DCRL-ME)
-
-
 @dataclasses.dataclass(frozen=True)
 class QDConfig:
     """The `[qd]` section: length of the run and logging."""
