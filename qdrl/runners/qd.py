@@ -1,4 +1,5 @@
-"""QD runs (MAP-Elites, CVT-MAP-Elites) on the standard tasks, for the experiment driver."""
+"""QD runs for the experiment driver: MAP-Elites with any emitter of the registry (CMA-ME, CMA-MAE,
+OMG-MEGA, CMA-MEGA, CMA-MAEGA, bandit pools), and the QD-RL algorithms built on it."""
 
 from __future__ import annotations
 
