@@ -28,6 +28,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
+from qdrl.lapack_threads import single_threaded_lapack
 from qdrl.qd.emitters.cma import CMAEmitter, CMAEmitterConfig
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.map_elites import MapElites
@@ -42,7 +43,7 @@ PUBLISHED = {  # normalised QD score after 10,000 iterations (CMA-MAE paper, Tab
 }
 
 
-def build(algo: str, dims: int, grid: int, instances: int, lam: int):  # type: ignore[no-untyped-def]
+def build(algo: str, dims: int, grid: int, instances: int, lam: int, **cma: object):  # type: ignore[no-untyped-def]
     task = make_task("lp_sphere", num_dims=dims)
     rep = grid_repertoire(task.example_genotype(), (grid, grid), task.descriptor_low, task.descriptor_high)
     if algo == "map_elites":
@@ -54,7 +55,7 @@ def build(algo: str, dims: int, grid: int, instances: int, lam: int):  # type: i
             "cma_me_filter": {"ranker": "2imp", "selection_rule": "filter", "restart_rule": "no_improvement"},
             "cma_mae": {"ranker": "imp", "selection_rule": "mu", "restart_rule": "basic"},
         }[algo]
-        config = CMAEmitterConfig(num_instances=instances, batch_size=lam, sigma0=0.5, **options)
+        config = CMAEmitterConfig(num_instances=instances, batch_size=lam, sigma0=0.5, **options, **cma)
         emitter = CMAEmitter(config, task.example_genotype())
         if algo == "cma_mae":
             rep = rep.with_learning_rate(0.01, threshold_min=0.0)
@@ -63,6 +64,11 @@ def build(algo: str, dims: int, grid: int, instances: int, lam: int):  # type: i
 
 
 def main() -> None:
+    with single_threaded_lapack():
+        _main()
+
+
+def _main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--algo", required=True, choices=sorted(PUBLISHED))
     parser.add_argument("--budget", type=float, default=600.0, help="wall seconds of running (compile excluded)")
@@ -73,10 +79,13 @@ def main() -> None:
     parser.add_argument("--instances", type=int, default=15)
     parser.add_argument("--lam", type=int, default=36)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--update-rule", default="pyribs", choices=["pyribs", "tutorial"])
+    parser.add_argument("--eigen-gap", type=int, default=None, help="generations (default: pyribs' gap)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
 
-    me, init = build(args.algo, args.dims, args.grid, args.instances, args.lam)
+    cma = {"update_rule": args.update_rule, "eigen_gap": args.eigen_gap}
+    me, init = build(args.algo, args.dims, args.grid, args.instances, args.lam, **cma)
     init_key, run_key = jax.random.split(jax.random.PRNGKey(args.seed))
     state = jax.jit(me.init)(init(init_key), run_key)
     run = jax.jit(lambda s: me.run(s, args.chunk))
@@ -104,6 +113,7 @@ def main() -> None:
     result = {
         "algo": args.algo,
         "seed": args.seed,
+        **({} if args.algo == "map_elites" else cma),
         "dims": args.dims,
         "grid": [args.grid, args.grid],
         "emitters": f"{args.instances} x {args.lam}",

@@ -1,4 +1,4 @@
-"""The same LP-sphere runs with pyribs itself, to check qdrl's CMA-ME / CMA-MAE against the reference.
+"""The same LP-sphere runs with pyribs itself, to check qdrl's CMA family against the reference.
 
 Runs in its own venv (pyribs is no qdrl dependency):
 
@@ -6,12 +6,15 @@ Runs in its own venv (pyribs is no qdrl dependency):
     /work/venvs/ribs/bin/python benchmarks/pyribs_lp_sphere.py --algo cma_me --budget 600 \
         --out benchmarks/results/cma_lp_sphere_pyribs.jsonl
 
-Settings of `benchmarks/cma_lp_sphere.py` (and pyribs' `examples/sphere.py`): LP
-sphere 100-D, 100 x 100 grid over [-256, 256]^2, 15 emitters of 36, sigma0 0.5, x0
-= 0; `cma_me` is `2imp` / mu / basic, `cma_me_filter` `2imp` / filter /
+Settings of `benchmarks/cma_lp_sphere.py` and the specs in agents/ (and pyribs'
+`examples/sphere.py`): LP sphere, 100 x 100 grid over [-n/2 5.12, n/2 5.12]^2,
+x0 = 0. `cma_me` is `2imp` / mu / basic, `cma_me_filter` `2imp` / filter /
 no_improvement, `cma_mae` `imp` / mu / basic with learning rate 0.01 and
-threshold_min 0 (and an elitist result archive for the metrics). One JSON line
-per run, with the normalised QD score every `--log-every` iterations.
+threshold_min 0 (and an elitist result archive for the metrics): 15 emitters of
+36, sigma0 0.5, 100-D. `cma_mega`: the DQD paper's CMA-MEGA, one
+GradientArborescenceEmitter of 35 + theta, sigma_g 10, gradient ascent at 1.0,
+mu selection, 1000-D (`--dims`). One JSON line per run, with the normalised QD
+score every `--log-every` iterations.
 """
 
 from __future__ import annotations
@@ -23,27 +26,40 @@ from pathlib import Path
 
 import numpy as np
 from ribs.archives import GridArchive
-from ribs.emitters import EvolutionStrategyEmitter
+from ribs.emitters import EvolutionStrategyEmitter, GradientArborescenceEmitter
 from ribs.schedulers import Scheduler
 
 OPTIONS = {
     "cma_me": {"ranker": "2imp", "selection_rule": "mu", "restart_rule": "basic"},
     "cma_me_filter": {"ranker": "2imp", "selection_rule": "filter", "restart_rule": "no_improvement"},
     "cma_mae": {"ranker": "imp", "selection_rule": "mu", "restart_rule": "basic"},
+    "cma_mega": {"ranker": "2imp", "selection_rule": "mu", "restart_rule": "no_improvement"},
 }
+DEFAULT_DIMS = {"cma_mega": 1000}
 
 
 def sphere(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """pyribs' LP sphere: objective in [0, 100] and the sums of the clipped halves."""
+    objective, _, measures, _ = sphere_with_gradients(x)
+    return objective, measures
+
+
+def sphere_with_gradients(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """pyribs' examples/sphere.py `sphere`: objective, its gradient, measures, their Jacobian."""
     dim = x.shape[1]
     shift = 0.4 * 5.12
     worst = (-5.12 - shift) ** 2 * dim
     objective = (np.sum(np.square(x - shift), axis=1) - worst) / (0.0 - worst) * 100
+    objective_grad = -2 * (x - shift)  # as pyribs' example: the gradient's direction, unscaled
     clipped = x.copy()
     outside = (clipped < -5.12) | (clipped > 5.12)
     clipped[outside] = 5.12 / clipped[outside]
     measures = np.stack([clipped[:, : dim // 2].sum(1), clipped[:, dim // 2 :].sum(1)], axis=1)
-    return objective, measures
+    derivatives = np.ones(x.shape)
+    derivatives[outside] = -5.12 / np.square(x[outside])
+    first = np.arange(dim) < dim // 2
+    measure_grads = np.stack([derivatives * first, derivatives * ~first], axis=1)
+    return objective, objective_grad, measures, measure_grads
 
 
 def main() -> None:
@@ -53,10 +69,12 @@ def main() -> None:
     parser.add_argument("--max-iterations", type=int, default=10_000)
     parser.add_argument("--log-every", type=int, default=250)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--dims", type=int, default=None, help="default: 100 (cma_mega: 1000)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
 
-    dim, bound = 100, 100 / 2 * 5.12
+    dim = args.dims or DEFAULT_DIMS.get(args.algo, 100)
+    bound = dim / 2 * 5.12
     ranges = [(-bound, bound)] * 2
     extra = {"learning_rate": 0.01, "threshold_min": 0.0} if args.algo == "cma_mae" else {}
     archive = GridArchive(solution_dim=dim, dims=(100, 100), ranges=ranges, seed=args.seed, **extra)
@@ -64,18 +82,30 @@ def main() -> None:
         GridArchive(solution_dim=dim, dims=(100, 100), ranges=ranges, seed=args.seed)
         if args.algo == "cma_mae" else None
     )
-    seeds = np.random.SeedSequence(args.seed).spawn(15)
-    emitters = [
-        EvolutionStrategyEmitter(archive, x0=np.zeros(dim), sigma0=0.5, batch_size=36, seed=s,
-                                 **OPTIONS[args.algo])
-        for s in seeds
-    ]
+    dqd = args.algo == "cma_mega"
+    if dqd:
+        seed = np.random.SeedSequence(args.seed).generate_state(1)[0]
+        emitters = [GradientArborescenceEmitter(
+            archive, x0=np.zeros(dim), sigma0=10.0, lr=1.0, grad_opt="gradient_ascent", batch_size=35,
+            seed=int(seed), **OPTIONS[args.algo])]
+    else:
+        seeds = np.random.SeedSequence(args.seed).spawn(15)
+        emitters = [
+            EvolutionStrategyEmitter(archive, x0=np.zeros(dim), sigma0=0.5, batch_size=36, seed=s,
+                                     **OPTIONS[args.algo])
+            for s in seeds
+        ]
     scheduler = Scheduler(archive, emitters, result_archive=result_archive)
     metrics_archive = scheduler.result_archive
     curve = []
     running, itr = 0.0, 0
     while running < args.budget and itr < args.max_iterations:
         t0 = time.perf_counter()
+        if dqd:
+            solutions = scheduler.ask_dqd()
+            objective, objective_grad, measures, measure_grads = sphere_with_gradients(solutions)
+            jacobian = np.concatenate([objective_grad[:, None, :], measure_grads], axis=1)
+            scheduler.tell_dqd(objective, measures, jacobian)
         solutions = scheduler.ask()
         objective, measures = sphere(solutions)
         scheduler.tell(objective, measures)
@@ -96,6 +126,7 @@ def main() -> None:
         "library": "pyribs 0.12",
         "seed": args.seed,
         "iterations": itr,
+        "dims": dim,
         "s_per_iteration": running / max(itr, 1),
         "final": curve[-1] if curve else None,
         "curve": curve,

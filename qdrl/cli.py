@@ -115,6 +115,11 @@ def _cmd_list(args: argparse.Namespace) -> int:
     print("algorithms:")
     for name in sorted(RUNS):
         print(f"  {name}")
+    from qdrl.qd.emitters.registry import EMITTER_KINDS
+
+    print("emitter kinds (the [emitter] kind of QD specs, or each [[emitters]] of a pool):")
+    for name, kind in sorted(EMITTER_KINDS.items()):
+        print(f"  {name}: {kind.description}")
     print("tasks:")
     from qdrl.tasks import TASKS
 

@@ -109,8 +109,9 @@ def spec_key(config_toml: str) -> str:
     """A digest of a resolved spec, leaving out the keys that do not change what is compiled."""
     spec = tomllib.loads(config_toml)
     flat = {
-        f"{section}.{key}": value
-        for section, table in spec.items()
+        f"{section}{'' if isinstance(tables, dict) else f'[{i}]'}.{key}": value
+        for section, tables in spec.items()
+        for i, table in enumerate([tables] if isinstance(tables, dict) else tables)  # [[section]]: a list
         for key, value in table.items()
         if section not in _NOT_COMPILED and f"{section}.{key}" not in _NOT_COMPILED
     }

@@ -327,13 +327,19 @@ def _toml_value(value: Any) -> str:
     raise TypeError(f"cannot write {value!r} to TOML")
 
 
-def dump_toml(sections: Mapping[str, Mapping[str, Any]]) -> str:
-    """TOML text for a mapping of section -> flat table (None values are left out)."""
+def dump_toml(sections: Mapping[str, Mapping[str, Any] | Sequence[Mapping[str, Any]]]) -> str:
+    """TOML text for a mapping of section -> flat table, or -> list of flat tables (an array
+    of tables, `[[section]]`); None values are left out."""
     lines: list[str] = []
-    for name, table in sections.items():
-        lines.append(f"[{name}]")
-        lines.extend(f"{k} = {_toml_value(v)}" for k, v in table.items() if v is not None)
-        lines.append("")
+    for name, value in sections.items():
+        if isinstance(value, Mapping):
+            tables = [(f"[{name}]", value)]
+        else:
+            tables = [(f"[[{name}]]", t) for t in value]
+        for header, table in tables:
+            lines.append(header)
+            lines.extend(f"{k} = {_toml_value(v)}" for k, v in table.items() if v is not None)
+            lines.append("")
     return "\n".join(lines)
 
 

@@ -132,6 +132,9 @@ class Algorithm(NamedTuple):
 
 
 RUNS: dict[str, Algorithm] = {}
+# Sections written as arrays of tables ([[name]], e.g. a QD pool's [[emitters]]); the
+# runners that read them add their names and check them (a list of tables) themselves.
+ARRAY_SECTIONS: set[str] = set()
 
 
 def register(name: str, parse: SpecParser, build: RunBuilder) -> None:
@@ -147,11 +150,11 @@ def scalar(x: Any) -> int | float:
 
 # The keys that set a run's length: the only ones (with [log]) that may change on
 # --resume, which then extends (or finishes) the run.
-LENGTH_KEYS: tuple[str, ...] = ("qd.num_iterations", "train.total_env_steps")
+LENGTH_KEYS: tuple[str, ...] = ("qd.num_iterations", "train.total_env_steps", "cma_es.num_generations")
 
 
 def _load_builtin_runs() -> None:
-    from qdrl.runners import pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
+    from qdrl.runners import cma_es, pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,7 +174,8 @@ def check_spec(spec: Mapping[str, Any]) -> CheckedSpec:
     """
     _load_builtin_runs()
     for name, table in spec.items():
-        check_table(table, name)
+        if not isinstance(table, list) and name not in ARRAY_SECTIONS:
+            check_table(table, name)
     if "experiment" not in spec:
         raise ConfigError("experiment: missing section; expected [experiment] with algorithm = ...")
     exp = build(ExperimentConfig, spec["experiment"], "experiment")
@@ -198,7 +202,9 @@ def resolved_toml(run: Run, exp: ExperimentConfig, log: LogConfig) -> str:
     """The spec with every default filled in, as TOML."""
     from qdrl.config import as_table
 
-    sections = {"experiment": as_table(exp), **{k: as_table(v) for k, v in run.sections.items()}}
+    sections: dict[str, Any] = {"experiment": as_table(exp)}
+    for k, v in run.sections.items():  # a tuple of configs is an array of tables ([[k]])
+        sections[k] = [as_table(x) for x in v] if isinstance(v, tuple) else as_table(v)
     sections["log"] = as_table(log)
     return dump_toml(sections)
 
@@ -243,7 +249,11 @@ def _fmt(x: float) -> str:
 
 
 def _flat(toml_text: str) -> dict[str, Any]:
-    return {f"{s}.{k}": v for s, table in tomllib.loads(toml_text).items() for k, v in table.items()}
+    flat: dict[str, Any] = {}
+    for s, table in tomllib.loads(toml_text).items():
+        tables = {f"{s}[{i}]": t for i, t in enumerate(table)} if isinstance(table, list) else {s: table}
+        flat.update({f"{name}.{k}": v for name, t in tables.items() for k, v in t.items()})
+    return flat
 
 
 def _show(value: Any) -> str:

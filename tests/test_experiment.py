@@ -165,3 +165,4 @@ def test_list_shows_specs_algorithms_and_tasks(capsys: pytest.CaptureFixture[str
     out = capsys.readouterr().out
     assert "agents/default.toml" in out and "sac" in out and "td3" in out and "halfcheetah" in out
     assert "map_elites" in out and "halfcheetah_uni" in out and "arm" in out
+    assert "  cma_improvement: CMA-ME's improvement emitter" in out and "cma_mae" in out

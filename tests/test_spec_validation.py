@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
+import re
 import resource
 import subprocess
 import sys
@@ -111,7 +112,9 @@ def declared_keys(checked: CheckedSpec) -> Iterator[tuple[str, str, Any, Any]]:
     """(section, key, declared type, resolved value) of every key the spec's sections accept."""
     from qdrl.tasks import TASKS
 
-    sections: dict[str, Any] = {"experiment": checked.experiment, "log": checked.log, **checked.sections}
+    sections: dict[str, Any] = {"experiment": checked.experiment, "log": checked.log}
+    for name, value in checked.sections.items():  # an array of tables ([[emitters]]): one section each
+        sections.update({f"{name}[{i}]": v for i, v in enumerate(value)} if isinstance(value, tuple) else {name: value})
     for section, obj in sections.items():
         if section == "task":
             yield section, "name", TaskName, obj["name"]
@@ -136,7 +139,20 @@ def substitutes(original: Any) -> list[tuple[str, Any]]:
 
 
 def with_value(spec: Mapping[str, Any], section: str, key: str, value: Any) -> dict[str, Any]:
+    if section.endswith("]"):  # "emitters[1]": a table of an array of tables
+        name, index = section[:-1].split("[")
+        tables = [dict(t) for t in spec[name]]
+        tables[int(index)][key] = value
+        return {**spec, name: tables}
     return {**spec, section: {**spec.get(section, {}), key: value}}
+
+
+def given(spec: Mapping[str, Any], section: str) -> Mapping[str, Any]:
+    """The keys the spec file sets in `section` ("emitters[1]": the second [[emitters]] table)."""
+    if section.endswith("]"):
+        name, index = section[:-1].split("[")
+        return dict(spec[name][int(index)])
+    return dict(spec.get(section, {}))
 
 
 @dataclasses.dataclass
@@ -190,7 +206,7 @@ def test_every_key_of_every_spec(path: Path, tallies: dict[str, Tally]) -> None:
     tally = tallies.setdefault(path.stem, Tally())
     every_key = path in FIRST_OF_EACH_ALGORITHM
     for section, key, tp, value in declared_keys(checked):
-        if key in spec.get(section, {}) or every_key:
+        if key in given(spec, section) or every_key:
             for label, bad in substitutes(value):
                 probe(spec, section, key, tp, label, bad, tally)
     assert not tally.failures, "\n".join(tally.failures[:20])
@@ -242,19 +258,22 @@ def test_every_number_declares_a_range_unless_any_finite_value_means_something(p
 def test_sections_of_the_wrong_type_unknown_keys_and_sections(path: Path) -> None:
     spec = load_toml(path)
     for section in spec:
+        array = isinstance(spec[section], list)  # [[emitters]]
+        expected = rf"a list of tables \(\[\[{section}\]\]" if array else rf"a table \(\[{section}\]"
         for value in (5, "x", [1], 1.5, True):
-            with pytest.raises(ConfigError, match=rf"^{section}: expected a table \(\[{section}\] followed by"):
+            with pytest.raises(ConfigError, match=rf"^{section}: expected {expected} followed by"):
                 check_spec({**spec, section: value})
         extra = "unknown key for task" if section == "task" else "unknown key;"
-        with pytest.raises(ConfigError, match=rf"^{section}\.not_a_key: {extra}"):
-            check_spec(with_value(spec, section, "not_a_key", 1))
+        where = f"{section}[0]" if array else section
+        with pytest.raises(ConfigError, match=rf"^{re.escape(where)}\.not_a_key: {extra}"):
+            check_spec(with_value(spec, where, "not_a_key", 1))
     with pytest.raises(ConfigError, match=r"^not_a_section: unknown section for algorithm"):
         check_spec({**spec, "not_a_section": {}})
 
 
 def test_missing_algorithm_section_and_required_keys() -> None:
     spec = load_toml(SPECS[0])
-    with pytest.raises(ConfigError, match=r"^experiment\.algorithm: missing; expected one of \['cvt_map_elites', "):
+    with pytest.raises(ConfigError, match=r"^experiment\.algorithm: missing; expected one of \['cma_es', "):
         check_spec({**spec, "experiment": {"seed": 0}})
     with pytest.raises(ConfigError, match=r"^experiment\.algorithm: expected one of \[.*\], got 'ppo'$"):
         check_spec(with_value(spec, "experiment", "algorithm", "ppo"))
@@ -322,7 +341,7 @@ CLI_SAMPLE: tuple[tuple[str, tuple[str, ...], str], ...] = (
     ("default.toml", ("archive.low=[-inf,-inf]",), "archive.low: expected a list of finite numbers, got [-inf, -inf]"),
     ("pga_me_halfcheetah_uni_cpu.toml", ("pg.discount=nan",), "pg.discount: expected a number in [0, 1], got nan"),
     ('qd = 5\n[experiment]\nalgorithm = "map_elites"\n', (), "qd: expected a table ([qd] followed by key = value lines), got 5"),
-    ("[experiment]\nseed = 1\n", (), "experiment.algorithm: missing; expected one of ['cvt_map_elites',"),
+    ("[experiment]\nseed = 1\n", (), "experiment.algorithm: missing; expected one of ['cma_es',"),
 )
 
 

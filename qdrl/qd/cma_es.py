@@ -27,13 +27,23 @@ generation with fewer parents (CMA-ME's "filter" selection) gets its own weights
 and rates, as in pyribs. sep-CMA-ES multiplies c_1 and c_mu by (n + 2) / 3 and
 keeps diag(C) only.
 
-The eigendecomposition C = B diag(D^2) B^T behind sampling and C^(-1/2) is lazy:
-by default it is refreshed once more than 0.5 lambda / (n (c_1 + c_mu))
-GENERATIONS have passed, QDax's gap (computed with lambda / 2 parents). Hansen's
-purecma and pyribs count the same number in evaluations, i.e. they decompose
-lambda times more often; `eigen_gap=1` decomposes every generation. On a 2-core
-CPU one 100 x 100 `eigh` costs tens of milliseconds, more than the rest of a
-generation, which is why the lazier gap is the default here.
+Two sets of update equations (`update_rule`):
+
+- "pyribs" (default): the reference implementation of CMA-ME, CMA-MAE and
+  CMA-MEGA, pyribs' `CMAEvolutionStrategy` (after Hansen's purecma), including
+  its quirks: the covariance path is kept in solution units (p_c above times
+  sigma) and its rank-one term is c_1^2 p_c p_c^T, i.e. c_1^2 sigma^2 times the
+  tutorial's (for n = 100, sigma = 0.5: about 5e-5 of it, the rank-one update all
+  but vanishes); sigma moves by exp(min(1, (c_sigma / d_sigma) (|p_sigma|^2 / n - 1) / 2))
+  and h_sigma tests |p_sigma|^2 / n / (1 - (1 - c_sigma)^(2 g)) < 2 + 4 / (n + 1).
+- "tutorial": Hansen 2016's equations as written above.
+
+The eigendecomposition C = B diag(D^2) B^T behind sampling and C^(-1/2) is lazy.
+By default it follows pyribs and purecma: refreshed once more than
+0.5 lambda / (n (c_1 + c_mu)) EVALUATIONS (lambda / 2 parents' rates) have passed
+since the last, i.e. every floor(that / lambda) + 1 generations (3 for n = 100,
+lambda = 36). `eigen_gap` sets the number of generations instead; QDax counts
+the same number in generations (`eigen_gap=106` for n = 100, lambda = 36).
 """
 
 from __future__ import annotations
@@ -54,6 +64,7 @@ MAX_CONDITION = 1e14
 MIN_AREA = 1e-11  # sigma * sqrt(largest eigenvalue) below this: the search has collapsed
 MAX_SIGMA_FACTOR = 1e20  # sigma / sigma0 * sqrt(largest eigenvalue) above this: it diverges
 FLAT_FITNESS = 1e-12
+UPDATE_RULES = ("pyribs", "tutorial")
 
 
 class CMAESState(NamedTuple):
@@ -100,8 +111,9 @@ class CMAES:
       population_size: lambda, solutions per generation (default 4 + floor(3 ln n)).
       sigma0: initial step size, > 0.
       separable: sep-CMA-ES (diagonal covariance, O(n) memory and time).
-      eigen_gap: generations between eigendecompositions; None for the default
-        (the first integer above 0.5 lambda / (n (c_1 + c_mu))).
+      eigen_gap: generations between eigendecompositions; None for pyribs' gap
+        (more than 0.5 lambda / (n (c_1 + c_mu)) evaluations).
+      update_rule: "pyribs" (the reference's equations) or "tutorial" (Hansen 2016).
     """
 
     num_dims: int
@@ -109,6 +121,7 @@ class CMAES:
     sigma0: float = 1.0
     separable: bool = False
     eigen_gap: int | None = None
+    update_rule: str = "pyribs"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.num_dims, int) and self.num_dims >= 1):
@@ -125,6 +138,8 @@ class CMAES:
             isinstance(self.eigen_gap, int) and self.eigen_gap >= 1
         ):
             raise ValueError(f"eigen_gap: expected a positive integer or None, got {self.eigen_gap!r}")
+        if self.update_rule not in UPDATE_RULES:
+            raise ValueError(f"update_rule: expected one of {list(UPDATE_RULES)}, got {self.update_rule!r}")
 
     @property
     def lam(self) -> int:
@@ -155,7 +170,7 @@ class CMAES:
 
     @property
     def eigen_period(self) -> int:
-        """Generations between eigendecompositions: `eigen_gap`, else the first integer above 0.5 lambda / (n (c_1 + c_mu))."""
+        """Generations between eigendecompositions: `eigen_gap`, else pyribs' (see the module docstring)."""
         if self.eigen_gap is not None:
             return self.eigen_gap
         # Plain floats: this is static (shapes, loop lengths), not traced.
@@ -168,8 +183,8 @@ class CMAES:
         if self.separable:
             c_1 *= (n + 2.0) / 3.0
             c_mu = min(1.0 - c_1, c_mu * (n + 2.0) / 3.0)
-        gap = 0.5 * self.lam / (n * (c_1 + c_mu))
-        return math.floor(gap) + 1
+        gap_evaluations = 0.5 * self.lam / (n * (c_1 + c_mu))
+        return math.floor(gap_evaluations / self.lam) + 1
 
     def init(self, mean: Array, sigma: Array | float | None = None) -> CMAESState:
         """A fresh search around `mean` (n,): C = I, sigma = sigma0, zero paths. Also the restart."""
@@ -251,22 +266,35 @@ class CMAES:
         p_sigma = (1.0 - c_sigma) * state.p_sigma + jnp.sqrt(
             c_sigma * (2.0 - c_sigma) * mueff
         ) * self._invsqrt(state, y_w)
-        norm_p_sigma = jnp.linalg.norm(p_sigma)
+        sq_p_sigma = jnp.sum(p_sigma * p_sigma)
         generations = (state.generation + 1).astype(jnp.float32)
-        h_sigma = (
-            norm_p_sigma / jnp.sqrt(1.0 - (1.0 - c_sigma) ** (2.0 * generations))
-            < (1.4 + 2.0 / (n + 1.0)) * self.chi_n
-        ).astype(jnp.float32)
-        p_c = (1.0 - c_c) * state.p_c + h_sigma * jnp.sqrt(c_c * (2.0 - c_c) * mueff) * y_w
+        unbiased = 1.0 - (1.0 - c_sigma) ** (2.0 * generations)  # p_sigma's start from 0
+        pyribs = self.update_rule == "pyribs"
+        if pyribs:
+            h_sigma = (sq_p_sigma / n / unbiased < 2.0 + 4.0 / (n + 1.0)).astype(jnp.float32)
+            # pyribs keeps the path in solution units and scales its rank-one term by c_1 twice
+            path_step = state.sigma * y_w
+            rank_one_rate = c_1 * c_1
+        else:
+            h_sigma = (
+                jnp.sqrt(sq_p_sigma / unbiased) < (1.4 + 2.0 / (n + 1.0)) * self.chi_n
+            ).astype(jnp.float32)
+            path_step = y_w
+            rank_one_rate = c_1
+        p_c = (1.0 - c_c) * state.p_c + h_sigma * jnp.sqrt(c_c * (2.0 - c_c) * mueff) * path_step
         delta = (1.0 - h_sigma) * c_c * (2.0 - c_c)
         decay = 1.0 + c_1 * delta - c_1 - c_mu  # the positive weights sum to 1
         if self.separable:
             rank_mu = weights @ (y * y)
-            cov = decay * state.cov + c_1 * p_c * p_c + c_mu * rank_mu
+            cov = decay * state.cov + rank_one_rate * p_c * p_c + c_mu * rank_mu
         else:
             rank_mu = (weights[:, None] * y).T @ y
-            cov = decay * state.cov + c_1 * jnp.outer(p_c, p_c) + c_mu * rank_mu
-        sigma = state.sigma * jnp.exp((c_sigma / d_sigma) * (norm_p_sigma / self.chi_n - 1.0))
+            cov = decay * state.cov + rank_one_rate * jnp.outer(p_c, p_c) + c_mu * rank_mu
+        if pyribs:
+            log_step = jnp.minimum(1.0, (c_sigma / d_sigma) * (sq_p_sigma / n - 1.0) / 2.0)
+        else:
+            log_step = (c_sigma / d_sigma) * (jnp.sqrt(sq_p_sigma) / self.chi_n - 1.0)
+        sigma = state.sigma * jnp.exp(log_step)
 
         learnt = state._replace(
             mean=mean, sigma=sigma, cov=cov, p_sigma=p_sigma, p_c=p_c

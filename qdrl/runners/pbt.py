@@ -192,7 +192,7 @@ class MEPBTRun(QDRun):
     (logged as `train_env_steps`; `total_env_steps` adds the evaluations').
     """
 
-    progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness", "population_best")
+    progress_keys: tuple[str, ...] = ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "population_best")
 
     def __init__(self, sections: Sections, exp: ExperimentConfig, agent_name: str) -> None:
         """Builds the task, agent, trainer and emitter of checked `sections` (`parse_me_pbt`)."""

@@ -1,16 +1,20 @@
-"""QD runs (MAP-Elites, CVT-MAP-Elites) on the standard tasks, for the experiment driver."""
+"""QD runs for the experiment driver: MAP-Elites with any emitter of the registry (CMA-ME, CMA-MAE,
+OMG-MEGA, CMA-MEGA, CMA-MAEGA, bandit pools), and the QD-RL algorithms built on it."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import inspect
+import math
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from qdrl.config import (
@@ -25,14 +29,34 @@ from qdrl.config import (
     check_params,
     check_table,
 )
-from qdrl.experiment import ExperimentConfig, Sections, register, scalar
+from qdrl.experiment import ARRAY_SECTIONS, ExperimentConfig, Sections, register, scalar
+from qdrl.lapack_threads import single_threaded_lapack
 from qdrl.qd.emitters.dcrl import DCRLConfig
+from qdrl.qd.emitters.ga import GAConfig, ga_emitter
 from qdrl.qd.emitters.pg import PGConfig
+from qdrl.qd.emitters.registry import (
+    CMA_KINDS,
+    EMITTER_KINDS,
+    GA_KINDS,
+    EmitterContext,
+    build_emitter,
+    build_pool,
+    check_pool,
+    instance_size,
+    offspring_per_iteration,
+    parse_emitter,
+    uses_cma_es,
+)
+from qdrl.qd.emitters.scheduler import BanditState, SchedulerConfig
 
 if TYPE_CHECKING:
     from qdrl.qd.base import Emitter
     from qdrl.qd.map_elites import MapElites, QDState
     from qdrl.tasks import Task
+
+
+# The start value of CMA-MAE's thresholds: any number, or -inf (a cell's threshold is then its elite's fitness).
+ThresholdMin = Annotated[float, Range(high=math.inf, high_open=True, finite=False)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,6 +68,10 @@ class RepertoireConfig:
     num_centroids: PositiveInt = 1024  # cvt: number of cells
     cvt_samples: PositiveInt = 50_000  # cvt: uniform samples clustered by k-means into centroids
     kmeans_iters: PositiveInt = 50  # cvt: Lloyd iterations
+    # CMA-MAE's archive learning rate alpha (Fontaine & Nikolaidis 2023): thresholds apart
+    # from the elites move towards accepted fitnesses; 1 with threshold_min = -inf: plain MAP-Elites.
+    learning_rate: UnitFloat = 1.0
+    threshold_min: ThresholdMin = -math.inf  # the thresholds' start value (CMA-MAE: the lowest fitness)
 
     def check(self) -> None:
         if not self.grid_shape:
@@ -53,20 +81,16 @@ class RepertoireConfig:
                 f"repertoire.cvt_samples: expected at least repertoire.num_centroids="
                 f"{self.num_centroids}, got {self.cvt_samples}"
             )
+        if self.threshold_min == -math.inf and self.learning_rate < 1.0:
+            raise ValueError(
+                "repertoire.threshold_min: expected a finite number when repertoire.learning_rate "
+                f"< 1 (CMA-MAE), got {self.threshold_min}"
+            )
 
-
-@dataclasses.dataclass(frozen=True)
-class EmitterConfig:
-    """The `[emitter]` section: how offspring are made."""
-
-    kind: Literal["isoline", "polynomial"] = "isoline"
-    batch_size: PositiveInt = 1024  # offspring per iteration
-    iso_sigma: NonNegativeFloat = 0.05  # isoline: isotropic Gaussian noise (Vassiliades & Mouret 2018)
-    line_sigma: NonNegativeFloat = 0.1  # isoline: noise along the line between two parents
-    variation_percentage: UnitFloat = 1.0  # share of the batch made by crossover/variation
-    eta: NonNegativeFloat = 0.05  # polynomial mutation: distribution index
-    proportion_to_mutate: UnitFloat = 0.5  # polynomial mutation: share of genes mutated
-    crossover_proportion: UnitFloat = 0.5  # polynomial crossover: share of genes exchanged
+    @property
+    def annealed(self) -> bool:
+        """Whether the repertoire keeps CMA-MAE's thresholds (not plain MAP-Elites)."""
+        return self.learning_rate < 1.0 or self.threshold_min > -math.inf
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,6 +100,9 @@ class QDConfig:
     num_iterations: PositiveInt = 1000  # emitter batches evaluated after the initial population
     log_every: PositiveInt = 50  # iterations between log points (one compiled chunk)
     init_batch_size: PositiveInt = 1024  # random genotypes evaluated to seed the repertoire
+    # "task": the task's random genotypes; "zeros": genotypes of zeros (x0 = 0 of the
+    # CMA-ME, CMA-MAE and DQD papers' CMA runs: every search starts at the origin).
+    initial_genotypes: Literal["task", "zeros"] = "task"
     # At the end, re-score every elite this many times from random start states and
     # report corrected metrics (Flageat & Cully 2023; `qdrl reevaluate`); 0: off.
     reevaluate_samples: NonNegativeInt = 0
@@ -86,6 +113,39 @@ class QDConfig:
                 f"qd.num_iterations: expected a multiple of qd.log_every={self.log_every}, "
                 f"got {self.num_iterations}"
             )
+
+
+@dataclasses.dataclass(frozen=True)
+class EmitterFamily:
+    """What a QD algorithm name means for its emitters and repertoire: defaults and allowed kinds.
+
+    `emitter`: the default `[emitter]` table (its `kind` and the values the
+    algorithm sets, under the spec's keys); `kinds`: the kinds its `[emitter]` or
+    `[[emitters]]` may name (None: all); `pool`: whether `[[emitters]]` is accepted;
+    `repertoire`: defaults of `[repertoire]` (CMA-MAE's learning rate).
+    """
+
+    emitter: Mapping[str, Any] = dataclasses.field(default_factory=lambda: {"kind": "isoline"})
+    kinds: tuple[str, ...] | None = None
+    pool: bool = True
+    repertoire: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+ANY_EMITTER = EmitterFamily()
+GA_ONLY = EmitterFamily(kinds=GA_KINDS, pool=False)
+_MAE = {"learning_rate": 0.01, "threshold_min": 0.0}
+FAMILIES: dict[str, EmitterFamily] = {
+    "cma_me": EmitterFamily({"kind": "cma_improvement"}, CMA_KINDS),
+    "cma_mae": EmitterFamily(
+        {"kind": "cma_improvement", "ranker": "imp", "selection_rule": "mu", "restart_rule": "basic"},
+        CMA_KINDS, repertoire=_MAE,
+    ),
+    "omg_mega": EmitterFamily({"kind": "omg_mega"}, ("omg_mega",), pool=False),
+    "cma_mega": EmitterFamily({"kind": "cma_mega"}, ("cma_mega",)),
+    "cma_maega": EmitterFamily(
+        {"kind": "cma_mega", "ranker": "imp", "restart_rule": "basic"}, ("cma_mega",), repertoire=_MAE
+    ),
+}
 
 
 def parse_task(data: Any, defaults: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -138,37 +198,70 @@ def parse_qd(
     default_kind: str = "grid",
     eval_batch: int | None = None,
     with_emitter: bool = True,
+    family: EmitterFamily = ANY_EMITTER,
 ) -> Sections:
-    """The checked `[task]`, `[repertoire]`, `[emitter]` and `[qd]` sections of a QD spec.
+    """The checked `[task]`, `[repertoire]`, `[emitter]` (or `[[emitters]]` and `[scheduler]`)
+    and `[qd]` sections of a QD spec.
 
-    `eval_batch`: the batch a policy task rolls out at once (default: emitter.batch_size).
+    `family` gives the algorithm's emitter kinds and defaults; `eval_batch`: the
+    batch a policy task rolls out at once (default: the offspring per iteration).
     """
     del exp
-    rep_data = dict(check_table(spec.get("repertoire", {}), "repertoire"))
+    rep_data = {**family.repertoire, **check_table(spec.get("repertoire", {}), "repertoire")}
     rep_data.setdefault("kind", default_kind)
     repertoire = build(RepertoireConfig, rep_data, "repertoire")
-    emitter = build(EmitterConfig, spec.get("emitter", {}), "emitter") if with_emitter else None
+    sections: Sections = {"repertoire": repertoire}
+    default_emitter = dict(family.emitter)
+    default_kind_name = str(default_emitter.pop("kind"))
+
+    def emitter_of(data: Any, section: str) -> Any:
+        return parse_emitter(data, section, default_kind_name, family.kinds, default_emitter)
+
+    if with_emitter and "emitters" in spec:
+        if not family.pool:
+            raise ConfigError("emitters: this algorithm takes one [emitter], not a pool of [[emitters]]")
+        if "emitter" in spec:
+            raise ConfigError("emitter: give either one [emitter] or a pool of [[emitters]], not both")
+        tables = spec["emitters"]
+        if not (isinstance(tables, list) and tables and all(isinstance(t, Mapping) for t in tables)):
+            raise ConfigError(
+                "emitters: expected a list of tables ([[emitters]] followed by key = value lines), "
+                f"got {tables!r}"
+            )
+        pool = tuple(emitter_of(t, f"emitters[{i}]") for i, t in enumerate(tables))
+        scheduler = build(SchedulerConfig, spec.get("scheduler", {}), "scheduler")
+        check_pool(pool, scheduler)
+        sections.update(emitters=pool, scheduler=scheduler)
+        per_iteration = scheduler.num_active * instance_size(pool[0])
+    elif with_emitter:
+        emitter = emitter_of(spec.get("emitter", {}), "emitter")
+        sections["emitter"] = emitter
+        per_iteration = offspring_per_iteration(emitter)
+    else:
+        per_iteration = None
     qd = build(QDConfig, spec.get("qd", {}), "qd")
-    if eval_batch is None and emitter is not None:
-        eval_batch = emitter.batch_size
+    if eval_batch is None:
+        eval_batch = per_iteration
     defaults = {} if eval_batch is None else {"eval_batch": eval_batch}
     task = parse_task(spec.get("task", {"name": "arm"}), defaults)
-    sections: Sections = {"task": task, "repertoire": repertoire, "emitter": emitter, "qd": qd}
-    if emitter is None:
-        del sections["emitter"]
-    return sections
+    return {"task": task, **sections, "qd": qd}
 
 
 class QDRun:
-    """MAP-Elites (grid or CVT repertoire) with a GA emitter on a standard task."""
+    """A QD run: MAP-Elites with any emitter of the registry (or a bandit pool of them) on a
+    grid or CVT repertoire, plain or with CMA-MAE's thresholds; MAP-Elites, CMA-ME, CMA-MAE,
+    OMG-MEGA, CMA-MEGA and CMA-MAEGA are this one run with different sections."""
 
-    progress_keys: tuple[str, ...] = ("qd_score", "coverage", "max_fitness", "evaluations_per_s")
+    progress_keys: tuple[str, ...] = (
+        "qd_score", "normalised_qd_score", "coverage", "max_fitness", "evaluations_per_s",
+    )
 
     def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
         """Builds the task of checked `sections` (`parse_qd`); the rest is built by `init`."""
         self.sections = dict(sections)
         self.rep_cfg: RepertoireConfig = sections["repertoire"]
-        self.emitter_cfg: EmitterConfig | None = sections.get("emitter")
+        self.emitter_cfg: Any = sections.get("emitter")
+        self.pool_cfg: tuple[Any, ...] | None = sections.get("emitters")
         self.qd_cfg: QDConfig = sections["qd"]
         self._task = make_task_of(sections["task"])
         dim = len(self._task.descriptor_low)
@@ -184,41 +277,61 @@ class QDRun:
         self.seed = exp.seed
         self._chunk: Any = None
         self.map_elites: MapElites | None = None
+        for config, section in self._emitter_sections():
+            if EMITTER_KINDS[config.kind].gradients != "none" and self._task.gradient_scoring_fn is None:
+                build_emitter(config, self._context(), section)  # raises the ConfigError naming the key
+        self._lapack = single_threaded_lapack if uses_cma_es([c for c, _ in self._emitter_sections()]) \
+            else contextlib.nullcontext
+
+    def _emitter_sections(self) -> list[tuple[Any, str]]:
+        """(config, section name) of the run's `[emitter]` or each of its `[[emitters]]`."""
+        if self.pool_cfg is not None:
+            return [(c, f"emitters[{i}]") for i, c in enumerate(self.pool_cfg)]
+        return [] if self.emitter_cfg is None else [(self.emitter_cfg, "emitter")]
+
+    def _context(self) -> EmitterContext:
+        task = self._task
+        return EmitterContext(
+            genotype_example=self.example_genotype(),
+            genotype_low=float(task.genotype_low),
+            genotype_high=float(task.genotype_high),
+            descriptor_low=tuple(task.descriptor_low),
+            descriptor_high=tuple(task.descriptor_high),
+            gradient_scoring_fn=task.gradient_scoring_fn,
+            task_name=task.name,
+        )
 
     def _build(self, key: jax.Array) -> MapElites:
-        from qdrl.qd.emitters.ga import isoline_emitter, polynomial_emitter
         from qdrl.qd.map_elites import MapElites
 
         task, ec = self._task, self.emitter_cfg
-        # Unbounded genotypes (policy parameters) are not clipped.
-        lo = task.genotype_low if np.isfinite(task.genotype_low) else None
-        hi = task.genotype_high if np.isfinite(task.genotype_high) else None
         repertoire = self.empty_repertoire(key)
 
         def make_ga(batch_size: int) -> Emitter:
-            assert ec is not None, "a run without [emitter] builds no GA"
-            if ec.kind == "isoline":
-                return isoline_emitter(
-                    batch_size, ec.iso_sigma, ec.line_sigma, lo, hi,
-                    variation_percentage=ec.variation_percentage,
-                )
-            return polynomial_emitter(
-                batch_size, ec.eta, ec.proportion_to_mutate, task.genotype_low, task.genotype_high,
-                variation_percentage=ec.variation_percentage,
-                proportion_var_to_change=ec.crossover_proportion,
-            )
+            assert isinstance(ec, GAConfig), "a run without a GA [emitter] builds no GA"
+            return ga_emitter(ec, task.genotype_low, task.genotype_high, batch_size)
 
-        return MapElites(self.scoring(), self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
+        return MapElites(self._loop_scoring(), self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
+
+    def _loop_scoring(self) -> Any:
+        """The QD loop's scoring function: with the task's gradients when an emitter reads every offspring's."""
+        if any(EMITTER_KINDS[c.kind].gradients == "scoring" for c, _ in self._emitter_sections()):
+            return self._task.gradient_scoring_fn
+        return self.scoring()
 
     def _emitter(self, make_ga: Callable[[int], Emitter]) -> Emitter:
-        """The run's emitter; `make_ga(n)` is the GA emitter of the `[emitter]` section with n offspring."""
-        return make_ga(self.batch_size)
+        """The run's emitter (`[emitter]`, or the bandit over `[[emitters]]`); subclasses with
+        their own emitters use `make_ga(n)`, the GA of `[emitter]` with n offspring."""
+        del make_ga
+        if self.pool_cfg is not None:
+            return build_pool(self.pool_cfg, self.sections["scheduler"], self._context())
+        return build_emitter(self.emitter_cfg, self._context())
 
     @property
     def batch_size(self) -> int:
-        """`emitter.batch_size` (runs without an `[emitter]` section override `_emitter`)."""
+        """Offspring per iteration of `[emitter]` (runs without one override `_emitter`)."""
         assert self.emitter_cfg is not None
-        return self.emitter_cfg.batch_size
+        return offspring_per_iteration(self.emitter_cfg)
 
     def empty_repertoire(self, key: jax.Array | None = None, centroids: Any = None) -> Any:
         """The run's empty repertoire (`[repertoire]`); a CVT's cells are `centroids`, or
@@ -228,25 +341,31 @@ class QDRun:
 
         task, rc, example = self._task, self.rep_cfg, self.example_genotype()
         if rc.kind == "grid":
-            return grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
-        if centroids is None:
-            if key is None:
-                raise ValueError("empty_repertoire: a CVT repertoire needs a key or centroids")
-            centroids = cvt_centroids(
-                key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
-                num_iters=rc.kmeans_iters,
-            )
-        return cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+            rep = grid_repertoire(example, rc.grid_shape, task.descriptor_low, task.descriptor_high)
+        else:
+            if centroids is None:
+                if key is None:
+                    raise ValueError("empty_repertoire: a CVT repertoire needs a key or centroids")
+                centroids = cvt_centroids(
+                    key, rc.num_centroids, rc.cvt_samples, task.descriptor_low, task.descriptor_high,
+                    num_iters=rc.kmeans_iters,
+                )
+            rep = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+        return rep.with_learning_rate(rc.learning_rate, rc.threshold_min) if rc.annealed else rep
 
     def example_genotype(self) -> Any:
         """One genotype of the run's repertoire (no batch axis, zeros): the task's."""
         return self._task.example_genotype()
 
     def _initial_genotypes(self, key: jax.Array, n: int) -> Any:
+        if self.qd_cfg.initial_genotypes == "zeros":
+            example = self.example_genotype()
+            return jax.tree.map(lambda x: jnp.zeros((n, *x.shape), x.dtype), example)
         return self._task.init_genotypes(key, n)
 
     def init(self, key: jax.Array) -> QDState:
-        return self._init(key, jax.jit)
+        with self._lapack():
+            return self._init(key, jax.jit)
 
     def state_template(self, key: jax.Array) -> QDState:
         """`init(key)`'s state as shapes and dtypes (`jax.eval_shape`): the template of the
@@ -272,7 +391,12 @@ class QDRun:
         return time.perf_counter() - t0
 
     def run_chunk(self, state: QDState) -> tuple[QDState, Any]:
-        return self._chunk(state)
+        if self._lapack is contextlib.nullcontext:
+            return self._chunk(state)
+        # CMA-ES's eigendecompositions run on one OpenBLAS thread (qdrl.lapack_threads),
+        # so the chunk is waited for inside the block.
+        with self._lapack():
+            return jax.block_until_ready(self._chunk(state))
 
     def log_row(self, state: QDState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         m = jax.device_get(chunk_metrics)
@@ -281,9 +405,12 @@ class QDRun:
             "evaluations": int(state.evaluations),
             "env_steps": int(state.env_steps),
         }
-        for key in ("qd_score", "coverage", "max_fitness", "mean_fitness", "num_elites"):
+        for key in ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "mean_fitness", "num_elites"):
             row[key] = scalar(np.asarray(m[key])[-1])
         row["added_per_iter"] = float(np.mean(m["added"]))
+        restarts = _restarts(state.emitter_state)
+        if restarts is not None:
+            row["restarts"] = restarts
         return row
 
     @property
@@ -326,8 +453,21 @@ class QDRun:
         return {f"corrected_{k}": v for k, v in report["corrected"].items()} | {"reevaluate_samples": n}
 
 
+def _restarts(emitter_state: Any) -> int | None:
+    """Restarts of every CMA-ES instance so far (CMA-ME, CMA-MEGA, their pools); None without any."""
+    if isinstance(emitter_state, BanditState):
+        counts = [_restarts(s) for s in emitter_state.pool]
+        found = [c for c in counts if c is not None]
+        return sum(found) if found else None
+    restarts = getattr(emitter_state, "restarts", None)
+    return None if restarts is None else int(np.asarray(restarts).sum())
+
+
+ARRAY_SECTIONS.add("emitters")
 register("map_elites", functools.partial(parse_qd, default_kind="grid"), QDRun)
 register("cvt_map_elites", functools.partial(parse_qd, default_kind="cvt"), QDRun)
+for _name, _family in FAMILIES.items():
+    register(_name, functools.partial(parse_qd, default_kind="grid", family=_family), QDRun)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -389,7 +529,7 @@ def parse_pga_me(
     spec: Mapping[str, Any], exp: ExperimentConfig, pg_section: type[PGConfig] = PGSection
 ) -> Sections:
     """The checked sections of a PGA-ME spec: those of `parse_qd` (CVT by default) and `[pg]`."""
-    sections = parse_qd(spec, exp, default_kind="cvt")
+    sections = parse_qd(spec, exp, default_kind="cvt", family=GA_ONLY)
     sections["pg"] = build(pg_section, spec.get("pg", {}), "pg")
     check_replay_buffer(sections, "pg", sections["pg"].replay_buffer_size)
     return sections
@@ -551,7 +691,7 @@ def parse_dcrl_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
     section checked with the default reward offset): the run completes it with the
     task's reward offset when the spec gives none (`DCRLMERun`).
     """
-    sections = parse_qd(spec, exp, default_kind="cvt")
+    sections = parse_qd(spec, exp, default_kind="cvt", family=GA_ONLY)
     data = dict(check_table(spec.get("dcrl", {}), "dcrl"))
     cfg = build(DCRLSection, data, "dcrl")
     batch = sections["emitter"].batch_size

@@ -4,7 +4,8 @@ Fontaine et al. 2020 (CMA-ME, Section 4), Fontaine & Nikolaidis 2021 ("Different
 Quality Diversity") and 2023 (CMA-MAE); the definitions of their experiment code
 (`lin_proj.py`) and of pyribs' `examples/sphere.py`:
 
-- genotype x in R^n, unbounded (searches start at x0 = 0);
+- genotype x in R^n, unbounded (`genotype_low`, `genotype_high` = -inf, inf: no
+  emitter clips it; searches start at x0 = 0, MAP-Elites from N(0, I) samples);
 - descriptors: the sums of the "clipped" halves of x, where a gene inside
   [-5.12, 5.12] counts as itself and one outside as 5.12 / x_i; each lies in
   [-5.12 n/2, 5.12 n/2], the archive's bounds;
@@ -67,8 +68,8 @@ def _lp_task(name: str, fitness: Callable[[Array], Array], num_dims: int) -> Tas
         descriptor_low=(-box, -box),
         descriptor_high=(box, box),
         genotype_size=num_dims,
-        genotype_low=-BOUND,
-        genotype_high=BOUND,
+        genotype_low=-math.inf,  # unbounded, as in the papers: no emitter clips
+        genotype_high=math.inf,
         qd_offset=0.0,
         max_fitness=100.0,
         init_fn=_normal_init(num_dims),

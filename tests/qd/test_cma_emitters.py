@@ -135,13 +135,18 @@ def test_bad_archive_and_emitter_options_are_rejected() -> None:
         _grid(0.01)
     for kw, message in (
         ({"sigma0": 0.0}, "emitter.sigma0: expected a number > 0, got 0.0"),
-        ({"ranker": "best"}, "emitter.ranker: expected one of 2imp, 2obj, 2rd, imp, obj, rd, got 'best'"),
-        ({"selection_rule": "all"}, "emitter.selection_rule: expected 'filter' or 'mu'"),
-        ({"restart_rule": "never"}, "emitter.restart_rule: expected"),
+        ({"ranker": "best"}, "emitter.ranker: expected one of ['2imp', '2obj', '2rd', 'imp', 'obj', 'rd'] or nothing"),
+        ({"selection_rule": "all"}, "emitter.selection_rule: expected one of 'filter', 'mu', got 'all'"),
+        ({"restart_rule": "never"}, "emitter.restart_rule: expected one of 'no_improvement', 'basic' or a positive integer"),
         ({"num_instances": 0}, "emitter.num_instances: expected a positive integer"),
+        ({"update_rule": "hansen"}, "emitter.update_rule: expected one of 'pyribs', 'tutorial'"),
     ):
         with pytest.raises(ValueError, match=re.escape(message)):
             CMAEmitterConfig(**kw).check()  # type: ignore[arg-type]
+    # each kind ranks by its own ranker unless told otherwise
+    assert [CMAEmitterConfig(kind=k).ranker for k in ("cma_improvement", "cma_optimizing", "cma_random_direction")] == [
+        "2imp", "obj", "2rd"]
+    assert CMAEmitterConfig(kind="cma_improvement", ranker="imp").ranker == "imp"
 
 
 def _run(emitter: CMAEmitter, rep, iterations: int):  # type: ignore[no-untyped-def]

@@ -1,4 +1,5 @@
-"""The one CMA-ES: weights and one update against Hansen's tutorial by hand, convergence, stops."""
+"""The one CMA-ES: weights; updates against Hansen's tutorial and pyribs' equations in NumPy;
+the eigendecomposition schedule; convergence; stops."""
 
 from __future__ import annotations
 
@@ -46,7 +47,7 @@ def _tutorial_update(mean, sigma, cov, ranked, k, generation=0):  # type: ignore
 
 
 def test_one_update_on_a_2d_quadratic_matches_the_tutorial() -> None:
-    es = CMAES(num_dims=2, population_size=6, sigma0=0.5)
+    es = CMAES(num_dims=2, population_size=6, sigma0=0.5, update_rule="tutorial")
     state = es.init(jnp.array([1.0, -1.0]))
     x = np.asarray(es.sample(state, jax.random.PRNGKey(3)))
     f = (x[:, 0] - 0.3) ** 2 + 10.0 * (x[:, 1] + 0.2) ** 2  # minimised: rank ascending
@@ -70,8 +71,8 @@ def test_one_update_on_a_2d_quadratic_matches_the_tutorial() -> None:
 
 
 def test_sep_cma_es_keeps_the_diagonal_of_the_full_update() -> None:
-    full = CMAES(num_dims=2, population_size=6, sigma0=0.5)
-    sep = CMAES(num_dims=2, population_size=6, sigma0=0.5, separable=True)
+    full = CMAES(num_dims=2, population_size=6, sigma0=0.5, update_rule="tutorial")
+    sep = CMAES(num_dims=2, population_size=6, sigma0=0.5, separable=True, update_rule="tutorial")
     ranked = jnp.array([[0.1, 0.2], [0.4, -0.3], [-0.2, 0.1], [0.9, 0.9], [1.0, -1.0], [2.0, 2.0]])
     f_state = full.update(full.init(jnp.zeros(2)), ranked, 3)
     s_state = sep.update(sep.init(jnp.zeros(2)), ranked, 3)
@@ -87,6 +88,73 @@ def test_sep_cma_es_keeps_the_diagonal_of_the_full_update() -> None:
     expected = (1 - s1 - smu) + s1 * p_c**2 + smu * (w[:3] @ (y * y))
     np.testing.assert_allclose(np.asarray(s_state.cov), expected, rtol=1e-5)
     assert s_state.cov.shape == (2,) and s_state.eigvecs.shape == (0,)
+
+
+def _pyribs_tell(st: dict, ranked: np.ndarray, k: int, lam: int) -> None:  # type: ignore[type-arg]
+    """pyribs 0.12's `CMAEvolutionStrategy.tell` and its eigendecomposition, in float64 NumPy."""
+    n = ranked.shape[1]
+    st["evals"] += lam
+    w = np.log(k + 0.5) - np.log(np.arange(1, k + 1))
+    w = w / w.sum()
+    mueff = w.sum() ** 2 / np.sum(w**2)
+    cc = (4 + mueff / n) / (n + 4 + 2 * mueff / n)
+    cs = (mueff + 2) / (n + mueff + 5)
+    c1 = 2 / ((n + 1.3) ** 2 + mueff)
+    cmu = min(1 - c1, 2 * (mueff - 2 + 1 / mueff) / ((n + 2) ** 2 + mueff))
+    damps = 1 + 2 * max(0, math.sqrt((mueff - 1) / (n + 1)) - 1) + cs
+    parents, old = ranked[:k], st["mean"]
+    st["mean"] = np.sum(parents * w[:, None], axis=0)
+    y = st["mean"] - old
+    st["ps"] = (1 - cs) * st["ps"] + (math.sqrt(cs * (2 - cs) * mueff) / st["sigma"]) * (st["invsqrt"] @ y)
+    left = np.sum(st["ps"] ** 2) / n / (1 - (1 - cs) ** (2 * st["evals"] / lam))
+    hsig = 1.0 if left < 2 + 4.0 / (n + 1) else 0.0
+    st["pc"] = (1 - cc) * st["pc"] + hsig * math.sqrt(cc * (2 - cc) * mueff) * y
+    ys = parents - old
+    rank_mu = np.einsum("ki,kj", ys * w[:, None], ys)
+    c1a = c1 * (1 - (1 - hsig**2) * cc * (2 - cc))
+    st["cov"] = st["cov"] * (1 - c1a - cmu * w.sum()) + c1 * np.outer(st["pc"], st["pc"]) * c1 + rank_mu * cmu / st["sigma"] ** 2
+    st["sigma"] *= math.exp(min(1, cs / damps * (np.sum(st["ps"] ** 2) / n - 1) / 2))
+    vals, vecs = np.linalg.eigh(np.maximum(st["cov"], st["cov"].T))
+    st["invsqrt"] = (vecs * (1 / np.sqrt(np.abs(vals)))) @ vecs.T
+
+
+def test_two_generations_match_pyribs_equations() -> None:
+    """The default equations are pyribs' (rank-one path in solution units, c_1^2; squared-norm step)."""
+    n, lam = 4, 8
+    es = CMAES(num_dims=n, population_size=lam, sigma0=0.5)
+    assert es.update_rule == "pyribs"
+    state = es.init(jnp.array([1.0, -1.0, 0.5, 0.0]))
+    ref = {"mean": np.array([1.0, -1.0, 0.5, 0.0]), "sigma": 0.5, "cov": np.eye(n), "invsqrt": np.eye(n),
+           "ps": np.zeros(n), "pc": np.zeros(n), "evals": 0}
+    rng = np.random.default_rng(0)
+    for gen, k in enumerate((4, 3)):
+        # skewed samples so that the covariance, both paths and sigma all move
+        x = ref["mean"] + 0.5 * rng.normal(size=(lam, n)) * np.array([3.0, 1.0, 0.3, 1.0]) + 0.1
+        ranked = x[np.argsort(np.sum((x - 2.0) ** 2, axis=1))]
+        state = es.update(state, jnp.asarray(ranked, jnp.float32), k, decompose=True)
+        _pyribs_tell(ref, ranked, k, lam)
+        for name, ours in (("mean", state.mean), ("cov", state.cov), ("ps", state.p_sigma), ("pc", state.p_c)):
+            np.testing.assert_allclose(np.asarray(ours), ref[name], rtol=2e-4, atol=1e-6, err_msg=f"{name} {gen}")
+        assert float(state.sigma) == pytest.approx(ref["sigma"], rel=1e-5)
+    assert float(np.linalg.norm(ref["pc"])) > 0.01  # the rank-one path took part
+    # the same samples under the tutorial's equations move sigma by another rule
+    tutorial = CMAES(num_dims=n, population_size=lam, sigma0=0.5, update_rule="tutorial")
+    t_state = tutorial.update(tutorial.init(jnp.zeros(n)), jnp.asarray(ranked, jnp.float32), 4)
+    p_state = es.update(es.init(jnp.zeros(n)), jnp.asarray(ranked, jnp.float32), 4)
+    assert abs(float(t_state.sigma) - float(p_state.sigma)) > 0.01
+
+
+def test_the_eigendecomposition_gap_is_pyribs_in_evaluations_unless_given() -> None:
+    # n = 100, lambda = 36: 0.5 * 36 / (100 (c_1 + c_mu)) = 105 evaluations, i.e. every 3 generations
+    assert CMAES(num_dims=100, population_size=36).eigen_period == 3
+    assert CMAES(num_dims=100, population_size=36, eigen_gap=106).eigen_period == 106
+    assert CMAES(num_dims=3, population_size=35).eigen_period == 1
+    es = CMAES(num_dims=100, population_size=36)
+    state = es.init(jnp.zeros(100))
+    x = es.sample(state, jax.random.PRNGKey(0))
+    for gen in range(1, 7):
+        state = es.update(state, x, 18)
+        assert int(state.decomposed_at) == 3 * (gen // 3), gen
 
 
 def _minimise_sphere(es: CMAES, mean0: jax.Array, generations: int, key: jax.Array):  # type: ignore[no-untyped-def]
@@ -145,6 +213,8 @@ def test_bad_hyperparameters_are_rejected() -> None:
         CMAES(num_dims=3, population_size=1)
     with pytest.raises(ValueError, match="eigen_gap"):
         CMAES(num_dims=3, eigen_gap=0)
+    with pytest.raises(ValueError, match="update_rule: expected one of"):
+        CMAES(num_dims=3, update_rule="hansen")
     with pytest.raises(ValueError, match="ranked: expected shape"):
         es = CMAES(num_dims=3, population_size=6)
         es.update(es.init(jnp.zeros(3)), jnp.zeros((5, 3)), 2)

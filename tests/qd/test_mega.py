@@ -99,7 +99,7 @@ def test_cma_mega_variants_improve_the_qd_score(
 
 def test_mega_rejects_bad_options_and_tasks_without_gradients() -> None:
     for kw, message in (
-        ({"optimizer": "sgd"}, "emitter.optimizer: expected 'gradient_ascent' or 'adam', got 'sgd'"),
+        ({"optimizer": "sgd"}, "emitter.optimizer: expected one of 'gradient_ascent', 'adam', got 'sgd'"),
         ({"learning_rate": 0.0}, "emitter.learning_rate: expected a number > 0, got 0.0"),
         ({"sigma0": -1.0}, "emitter.sigma0: expected a number > 0, got -1.0"),
         ({"ranker": "nope"}, "emitter.ranker: expected one of"),

@@ -75,7 +75,7 @@ def test_bad_scheduler_options() -> None:
     cma = CMAEmitter(CMAEmitterConfig(num_instances=3, batch_size=8), task.example_genotype())
     with pytest.raises(ValueError, match=re.escape("scheduler.num_active: expected an integer in [1, 3]")):
         BanditScheduler((cma,), SchedulerConfig(num_active=4))
-    with pytest.raises(ValueError, match=re.escape("scheduler.reselect: expected 'terminated' or 'all'")):
+    with pytest.raises(ValueError, match=re.escape("scheduler.reselect: expected one of 'terminated', 'all', got 'some'")):
         BanditScheduler((cma,), SchedulerConfig(num_active=1, reselect="some"))
     with pytest.raises(ValueError, match="one number of offspring per instance"):
         BanditScheduler((cma, StatelessInstances(isoline_emitter(5, 0.5, 0.2), 2)), SchedulerConfig(num_active=1))

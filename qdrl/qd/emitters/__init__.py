@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from qdrl.qd.emitters.cma import CMAEmitter, CMAEmitterConfig, CMAEmitterState
 from qdrl.qd.emitters.ga import (
+    GAConfig,
     GAEmitter,
     MutationFn,
     VariationFn,
+    ga_emitter,
     gaussian_mutation,
     isoline_emitter,
     isoline_variation,
@@ -23,6 +25,13 @@ from qdrl.qd.emitters.mega import (
 )
 from qdrl.qd.emitters.multi import MultiEmitter, concat_batches, split_batch
 from qdrl.qd.emitters.rankers import RANKERS, Outcome, outcome, rank
+from qdrl.qd.emitters.registry import (
+    EMITTER_KINDS,
+    EmitterContext,
+    build_emitter,
+    build_pool,
+    parse_emitter,
+)
 from qdrl.qd.emitters.scheduler import (
     BanditScheduler,
     BanditState,
@@ -31,6 +40,7 @@ from qdrl.qd.emitters.scheduler import (
 )
 
 __all__ = [
+    "EMITTER_KINDS",
     "RANKERS",
     "BanditScheduler",
     "BanditState",
@@ -40,6 +50,8 @@ __all__ = [
     "CMAMegaConfig",
     "CMAMegaEmitter",
     "CMAMegaState",
+    "EmitterContext",
+    "GAConfig",
     "GAEmitter",
     "MultiEmitter",
     "MutationFn",
@@ -49,11 +61,15 @@ __all__ = [
     "SchedulerConfig",
     "StatelessInstances",
     "VariationFn",
+    "build_emitter",
+    "build_pool",
     "concat_batches",
+    "ga_emitter",
     "gaussian_mutation",
     "isoline_emitter",
     "isoline_variation",
     "outcome",
+    "parse_emitter",
     "polynomial_crossover",
     "polynomial_emitter",
     "polynomial_mutation",

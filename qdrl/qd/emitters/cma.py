@@ -32,19 +32,19 @@ chose.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Annotated, Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
+from qdrl.config import OneOf, PositiveFloat, PositiveInt, Range, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.cma_es import CMAES, CMAESState
 from qdrl.qd.emitters.rankers import (
+    RANKERS,
     Outcome,
-    check_ranker,
     outcome,
     random_direction,
     rank,
@@ -53,6 +53,7 @@ from qdrl.qd.emitters.rankers import (
 from qdrl.types import Array, Genotype, PRNGKey
 
 __all__ = [
+    "KIND_RANKERS",
     "CMAEmitter",
     "CMAEmitterConfig",
     "CMAEmitterState",
@@ -61,74 +62,60 @@ __all__ = [
     "tree_select",
 ]
 
-SELECTION_RULES = ("filter", "mu")
-RESTART_RULES = ("no_improvement", "basic")
+CMAKind = Literal["cma_improvement", "cma_optimizing", "cma_random_direction"]
+# The ranker of each kind (CMA-ME's improvement, optimizing and random-direction
+# emitters; pyribs' `EvolutionStrategyEmitter` with these rankers); `ranker` overrides it.
+KIND_RANKERS: dict[str, str] = {
+    "cma_improvement": "2imp",
+    "cma_optimizing": "obj",
+    "cma_random_direction": "2rd",
+}
 
 
-def _is_int(value: object) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
+def ranker_names() -> list[str]:
+    """The rankers an emitter may name (`qdrl.qd.emitters.rankers.RANKERS`)."""
+    return sorted(RANKERS)
 
 
-def check_search_options(
-    section: str,
-    sigma0: object,
-    batch_size: object,
-    num_instances: object,
-    ranker: object,
-    selection_rule: object,
-    restart_rule: object,
-) -> None:
-    """The checks shared by every CMA-based emitter config (messages name `section.key`)."""
-    if not (isinstance(sigma0, int | float) and not isinstance(sigma0, bool)
-            and math.isfinite(sigma0) and sigma0 > 0):
-        raise ValueError(f"{section}.sigma0: expected a number > 0, got {sigma0!r}")
-    if not (_is_int(batch_size) and batch_size >= 2):  # type: ignore[operator]
-        raise ValueError(f"{section}.batch_size: expected an integer >= 2, got {batch_size!r}")
-    if not (_is_int(num_instances) and num_instances >= 1):  # type: ignore[operator]
-        raise ValueError(f"{section}.num_instances: expected a positive integer, got {num_instances!r}")
-    if not isinstance(ranker, str):
-        raise ValueError(f"{section}.ranker: expected a ranker name, got {ranker!r}")
-    check_ranker(ranker, f"{section}.ranker")
-    if selection_rule not in SELECTION_RULES:
-        raise ValueError(
-            f"{section}.selection_rule: expected 'filter' or 'mu', got {selection_rule!r}"
-        )
-    if not (restart_rule in RESTART_RULES or (_is_int(restart_rule) and restart_rule >= 1)):  # type: ignore[operator]
-        raise ValueError(
-            f"{section}.restart_rule: expected 'no_improvement', 'basic' or a positive integer, "
-            f"got {restart_rule!r}"
-        )
+RankerName = Annotated[str, OneOf(ranker_names)]
+SelectionRule = Literal["filter", "mu"]
+# "no_improvement" (also restart when no offspring was accepted), "basic" (CMA-ES's
+# own stop conditions only), or N (also after N generations since the last restart).
+RestartRule = Literal["no_improvement", "basic"] | PositiveInt
+Lambda = Annotated[int, Range(low=2)]  # solutions per CMA-ES generation
+UpdateRule = Literal["pyribs", "tutorial"]
 
 
 @dataclasses.dataclass(frozen=True)
 class CMAEmitterConfig:
-    """The `[emitter]` options of CMA-ME / CMA-MAE; defaults: pyribs' CMA-ME (`2imp`, filter, no_improvement).
+    """The `[emitter]` section of CMA-ME / CMA-MAE (`kind` = "cma_improvement",
+    "cma_optimizing" or "cma_random_direction"); defaults: pyribs' CMA-ME (`2imp`,
+    filter, no_improvement).
 
-    CMA-MAE (Fontaine & Nikolaidis 2023) is `ranker="imp", selection_rule="mu",
-    restart_rule="basic"` on a repertoire with a learning rate.
+    CMA-MAE (Fontaine & Nikolaidis 2023) is the improvement emitter with
+    `ranker="imp", selection_rule="mu", restart_rule="basic"` on a repertoire
+    with a learning rate. `ranker` defaults to the kind's (`KIND_RANKERS`).
     """
 
-    num_instances: int = 15  # independent CMA-ES searches stepped together
-    batch_size: int = 36  # solutions per instance per iteration (lambda)
-    sigma0: float = 0.5  # initial step size of every (re)start
-    ranker: str = "2imp"  # imp, 2imp, obj, 2obj, rd, 2rd (qdrl.qd.emitters.rankers)
-    selection_rule: str = "filter"  # "filter": accepted offspring recombine; "mu": the best half
-    restart_rule: str | int = "no_improvement"  # "no_improvement", "basic", or N generations
+    kind: CMAKind = "cma_improvement"
+    num_instances: PositiveInt = 15  # independent CMA-ES searches stepped together
+    batch_size: Lambda = 36  # solutions per instance per iteration (lambda)
+    sigma0: PositiveFloat = 0.5  # initial step size of every (re)start
+    ranker: RankerName | None = None  # imp, 2imp, obj, 2obj, rd, 2rd; None: the kind's
+    selection_rule: SelectionRule = "filter"  # "filter": accepted offspring recombine; "mu": the best half
+    restart_rule: RestartRule = "no_improvement"
     separable: bool = False  # sep-CMA-ES: diagonal covariance, for thousands of parameters
-    eigen_gap: int | None = None  # generations between eigendecompositions (None: CMAES default)
+    # Generations between eigendecompositions; omitted: pyribs' gap, counted in evaluations.
+    eigen_gap: PositiveInt | None = None
+    update_rule: UpdateRule = "pyribs"  # CMA-ES equations: pyribs' (the reference) or Hansen's tutorial
+
+    def __post_init__(self) -> None:
+        if self.ranker is None:
+            object.__setattr__(self, "ranker", KIND_RANKERS.get(self.kind, "2imp"))
 
     def check(self, section: str = "emitter") -> None:
-        """Raises `ValueError("section.key: expected ..., got ...")` for a bad value."""
-        check_search_options(
-            section, self.sigma0, self.batch_size, self.num_instances, self.ranker,
-            self.selection_rule, self.restart_rule,
-        )
-        if not isinstance(self.separable, bool):
-            raise ValueError(f"{section}.separable: expected true or false, got {self.separable!r}")
-        if self.eigen_gap is not None and not (_is_int(self.eigen_gap) and self.eigen_gap >= 1):
-            raise ValueError(
-                f"{section}.eigen_gap: expected a positive integer, got {self.eigen_gap!r}"
-            )
+        """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
+        check_fields(self, section)
 
 
 class CMAEmitterState(NamedTuple):
@@ -187,13 +174,15 @@ class CMAEmitter:
     batch_size: int = dataclasses.field(init=False)
     es: CMAES = dataclasses.field(init=False)
     unravel: Callable[[Array], Genotype] = dataclasses.field(init=False)
+    ranker: str = dataclasses.field(init=False)
 
     def __post_init__(self) -> None:
         self.config.check()
         flat, self.unravel = ravel_pytree(self.genotype_example)
         c = self.config
+        self.ranker = c.ranker or KIND_RANKERS[c.kind]
         self.es = CMAES(
-            int(flat.shape[0]), c.batch_size, float(c.sigma0), c.separable, c.eigen_gap
+            int(flat.shape[0]), c.batch_size, float(c.sigma0), c.separable, c.eigen_gap, c.update_rule
         )
         self.batch_size = c.num_instances * c.batch_size
 
@@ -218,7 +207,7 @@ class CMAEmitter:
         high = self.descriptor_high if self.descriptor_high is not None else getattr(repertoire, "high", None)
         if low is None or high is None:
             raise ValueError(
-                f"emitter.ranker: {self.config.ranker!r} needs the descriptor bounds: give "
+                f"emitter.ranker: {self.ranker!r} needs the descriptor bounds: give "
                 "descriptor_low and descriptor_high, or use a grid repertoire"
             )
         return jnp.asarray(low, jnp.float32), jnp.asarray(high, jnp.float32)
@@ -230,7 +219,7 @@ class CMAEmitter:
         means = self._flat(repertoire.sample(elite_key, k), 1)
         states = jax.vmap(self.es.init)(means)
         dim = int(repertoire.descriptors.shape[-1])
-        if uses_direction(self.config.ranker):
+        if uses_direction(self.ranker):
             low, high = self._bounds(repertoire)
             keys = jax.random.split(direction_key, k)
             directions = jax.vmap(lambda kk: random_direction(kk, low, high))(keys)
@@ -286,7 +275,7 @@ class CMAEmitter:
         decompose = (state.clock + 1) % self.es.eigen_period == 0
 
         def tell(es_state: CMAESState, x: Array, o: Outcome, direction: Array) -> tuple[CMAESState, Array]:
-            order, values = rank(c.ranker, o, direction)
+            order, values = rank(self.ranker, o, direction)
             k = num_parents(c.selection_rule, o.status, c.batch_size)
             new = self.es.update(es_state, x[order], k, decompose)
             stop = self.es.stop(new, values)

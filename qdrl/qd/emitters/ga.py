@@ -12,11 +12,12 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
 
+from qdrl.config import NonNegativeFloat, PositiveInt, UnitFloat, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.emitters.multi import concat_batches
 from qdrl.types import Array, Genotype, PRNGKey
@@ -342,10 +343,69 @@ def polynomial_emitter(
     return GAEmitter(batch_size, variation, mutation, variation_percentage=variation_percentage)
 
 
+GAKind = Literal["isoline", "polynomial"]
+
+
+@dataclasses.dataclass(frozen=True)
+class GAConfig:
+    """The `[emitter]` section of a GA emitter (`kind` = "isoline" or "polynomial").
+
+    MAP-Elites' own emitter; PGA-ME, QD-PG and DCRL-ME make part of their batch
+    with it. Plain Gaussian mutation (the DQD paper's MAP-Elites) is "isoline"
+    with `variation_percentage = 0`.
+    """
+
+    kind: GAKind = "isoline"
+    batch_size: PositiveInt = 1024  # offspring per iteration (of each instance)
+    # Copies of this GA: arms of the bandit in a pool ([[emitters]]); alone, they make
+    # num_instances x batch_size offspring together.
+    num_instances: PositiveInt = 1
+    iso_sigma: NonNegativeFloat = 0.05  # isoline: isotropic Gaussian noise (Vassiliades & Mouret 2018)
+    line_sigma: NonNegativeFloat = 0.1  # isoline: noise along the line between two parents
+    variation_percentage: UnitFloat = 1.0  # share of the batch made by crossover/variation
+    eta: NonNegativeFloat = 0.05  # polynomial mutation: distribution index
+    proportion_to_mutate: UnitFloat = 0.5  # polynomial mutation: share of genes mutated
+    crossover_proportion: UnitFloat = 0.5  # polynomial crossover: share of genes exchanged
+
+    def check(self, section: str = "emitter") -> None:
+        """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
+        check_fields(self, section)
+
+
+def ga_emitter(
+    config: GAConfig, genotype_low: float, genotype_high: float, batch_size: int | None = None
+) -> GAEmitter:
+    """The GA of `config` with `batch_size` offspring (default: num_instances x batch_size).
+
+    Offspring are clipped to finite genotype bounds (an infinite bound clips
+    nothing); polynomial mutation needs finite bounds.
+    """
+    n = config.num_instances * config.batch_size if batch_size is None else batch_size
+    if config.kind == "isoline":
+        lo = genotype_low if math.isfinite(genotype_low) else None
+        hi = genotype_high if math.isfinite(genotype_high) else None
+        return isoline_emitter(
+            n, config.iso_sigma, config.line_sigma, lo, hi,
+            variation_percentage=config.variation_percentage,
+        )
+    if not (math.isfinite(genotype_low) and math.isfinite(genotype_high)):
+        raise ValueError(
+            "emitter.kind: 'polynomial' mutates within the genotype bounds, which must be "
+            f"finite; the task's are [{genotype_low}, {genotype_high}] (use 'isoline')"
+        )
+    return polynomial_emitter(
+        n, config.eta, config.proportion_to_mutate, genotype_low, genotype_high,
+        variation_percentage=config.variation_percentage,
+        proportion_var_to_change=config.crossover_proportion,
+    )
+
+
 __all__: list[str] = [
+    "GAConfig",
     "GAEmitter",
     "MutationFn",
     "VariationFn",
+    "ga_emitter",
     "gaussian_mutation",
     "isoline_emitter",
     "isoline_variation",

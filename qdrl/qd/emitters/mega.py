@@ -33,19 +33,23 @@ theta come from one call of the task's scoring function by the emitter itself.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import optax
 
+from qdrl.config import PositiveFloat, PositiveInt, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire, ScoringFn
 from qdrl.qd.cma_es import CMAES, CMAESState, recombination_weights
 from qdrl.qd.dqd import jacobian
 from qdrl.qd.emitters.cma import (
-    check_search_options,
+    Lambda,
+    RankerName,
+    RestartRule,
+    SelectionRule,
+    UpdateRule,
     must_restart,
     num_parents,
     tree_select,
@@ -71,28 +75,19 @@ def normalise_rows(jac: Array) -> Array:
     return jac / (jnp.linalg.norm(jac, axis=-1, keepdims=True) + EPSILON)
 
 
-def _positive(section: str, name: str, value: object) -> None:
-    if not (isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{section}.{name}: expected a number > 0, got {value!r}")
-
-
 @dataclasses.dataclass(frozen=True)
 class OMGMegaConfig:
-    """OMG-MEGA's options; defaults: pyribs' `omg_mega` on the LP sphere (sigma_g 10, normalised)."""
+    """The `[emitter]` section of OMG-MEGA (`kind = "omg_mega"`); defaults: the DQD
+    paper's LP runs (sigma_g 10, normalised gradients), 36 offspring per iteration."""
 
-    batch_size: int = 540  # offspring per iteration
-    sigma_g: float = 10.0  # standard deviation of the gradient coefficients
-    normalize_gradients: bool = True
+    kind: Literal["omg_mega"] = "omg_mega"
+    batch_size: PositiveInt = 36  # offspring per iteration
+    sigma_g: PositiveFloat = 10.0  # standard deviation of the gradient coefficients
+    normalize_gradients: bool = True  # each gradient divided by its norm (+ 1e-8)
 
     def check(self, section: str = "emitter") -> None:
-        """Raises `ValueError("section.key: expected ..., got ...")` for a bad value."""
-        if not (isinstance(self.batch_size, int) and self.batch_size >= 1):
-            raise ValueError(f"{section}.batch_size: expected a positive integer, got {self.batch_size!r}")
-        _positive(section, "sigma_g", self.sigma_g)
-        if not isinstance(self.normalize_gradients, bool):
-            raise ValueError(
-                f"{section}.normalize_gradients: expected true or false, got {self.normalize_gradients!r}"
-            )
+        """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
+        check_fields(self, section)
 
 
 @dataclasses.dataclass(eq=False)
@@ -153,42 +148,31 @@ class OMGMegaEmitter:
         return state.at[target].set(jac, mode="drop")
 
 
-OPTIMIZERS = ("gradient_ascent", "adam")
-
-
 @dataclasses.dataclass(frozen=True)
 class CMAMegaConfig:
-    """CMA-MEGA's options; defaults: pyribs' `cma_mega` on the LP sphere.
+    """The `[emitter]` section of CMA-MEGA (`kind = "cma_mega"`); defaults: the DQD
+    paper's LP runs (one instance of 35 coefficient samples plus theta, sigma_g 10,
+    gradient ascent at 1.0, `2imp`, mu, no_improvement).
 
     CMA-MEGA (Adam): `optimizer="adam", learning_rate=0.002`. CMA-MAEGA:
     `ranker="imp", restart_rule="basic"` on a repertoire with a learning rate.
     """
 
-    num_instances: int = 15
-    batch_size: int = 35  # coefficient samples per instance (lambda); theta is emitted as well
-    sigma0: float = 10.0  # initial step size of the coefficient CMA-ES (sigma_g)
-    learning_rate: float = 1.0  # step size of theta's optimiser
-    optimizer: str = "gradient_ascent"  # or "adam"
-    ranker: str = "2imp"
-    selection_rule: str = "mu"
-    restart_rule: str | int = "no_improvement"
+    kind: Literal["cma_mega"] = "cma_mega"
+    num_instances: PositiveInt = 1
+    batch_size: Lambda = 35  # coefficient samples per instance (lambda); theta is emitted as well
+    sigma0: PositiveFloat = 10.0  # initial step size of the coefficient CMA-ES (sigma_g)
+    learning_rate: PositiveFloat = 1.0  # step size of theta's optimiser
+    optimizer: Literal["gradient_ascent", "adam"] = "gradient_ascent"
+    ranker: RankerName = "2imp"
+    selection_rule: SelectionRule = "mu"
+    restart_rule: RestartRule = "no_improvement"
     normalize_gradients: bool = True
+    update_rule: UpdateRule = "pyribs"  # the coefficient CMA-ES's equations
 
     def check(self, section: str = "emitter") -> None:
-        """Raises `ValueError("section.key: expected ..., got ...")` for a bad value."""
-        check_search_options(
-            section, self.sigma0, self.batch_size, self.num_instances, self.ranker,
-            self.selection_rule, self.restart_rule,
-        )
-        _positive(section, "learning_rate", self.learning_rate)
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(
-                f"{section}.optimizer: expected 'gradient_ascent' or 'adam', got {self.optimizer!r}"
-            )
-        if not isinstance(self.normalize_gradients, bool):
-            raise ValueError(
-                f"{section}.normalize_gradients: expected true or false, got {self.normalize_gradients!r}"
-            )
+        """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
+        check_fields(self, section)
 
 
 class CMAMegaState(NamedTuple):
@@ -245,7 +229,8 @@ class CMAMegaEmitter:
         return self.config.batch_size + 1
 
     def _coeff_es(self, num_coeffs: int) -> CMAES:
-        return CMAES(num_coeffs, self.config.batch_size, float(self.config.sigma0))
+        c = self.config
+        return CMAES(num_coeffs, c.batch_size, float(c.sigma0), update_rule=c.update_rule)
 
     def _gradients(self, theta: Array, key: PRNGKey) -> Array:
         jac = jacobian(self.gradient_fn(theta, key).extras)

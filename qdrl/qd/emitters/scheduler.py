@@ -26,11 +26,12 @@ thrown away (`active`).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Literal, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
 
+from qdrl.config import ConfigError, NonNegativeFloat, PositiveInt, check_fields
 from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
 from qdrl.qd.emitters.rankers import Outcome, outcome
 from qdrl.types import Array, Genotype, PRNGKey
@@ -112,23 +113,23 @@ class StatelessInstances:
 
 @dataclasses.dataclass(frozen=True)
 class SchedulerConfig:
-    """The bandit's options; defaults: pyribs' `BanditScheduler` (zeta 0.05, reselect terminated)."""
+    """The `[scheduler]` section of a pool (`[[emitters]]`); defaults: pyribs' `BanditScheduler`
+    (zeta 0.05, reselect terminated) with the papers' 15 emitters at a time."""
 
-    num_active: int = 15  # instances that emit each iteration
-    zeta: float = 0.05  # weight of the exploration term of UCB1
-    reselect: str = "terminated"  # "terminated": restarted instances give up their place; "all"
+    num_active: PositiveInt = 15  # instances that emit each iteration (at most the pool's instances)
+    zeta: NonNegativeFloat = 0.05  # weight of the exploration term of UCB1
+    # "terminated": only instances that restarted give up their place; "all": every active one.
+    reselect: Literal["terminated", "all"] = "terminated"
 
-    def check(self, num_instances: int, section: str = "scheduler") -> None:
-        """Raises `ValueError("section.key: expected ..., got ...")` for a bad value."""
-        if not (isinstance(self.num_active, int) and 1 <= self.num_active <= num_instances):
-            raise ValueError(
+    def check(self, num_instances: int | None = None, section: str = "scheduler") -> None:
+        """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value; with
+        `num_instances`, also when more instances should emit than the pool has."""
+        check_fields(self, section)
+        if num_instances is not None and self.num_active > num_instances:
+            raise ConfigError(
                 f"{section}.num_active: expected an integer in [1, {num_instances}] (the pool's "
                 f"instances), got {self.num_active!r}"
             )
-        if not (isinstance(self.zeta, int | float) and self.zeta >= 0):
-            raise ValueError(f"{section}.zeta: expected a number >= 0, got {self.zeta!r}")
-        if self.reselect not in ("terminated", "all"):
-            raise ValueError(f"{section}.reselect: expected 'terminated' or 'all', got {self.reselect!r}")
 
 
 class BanditState(NamedTuple):
