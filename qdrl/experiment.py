@@ -151,7 +151,7 @@ LENGTH_KEYS: tuple[str, ...] = ("qd.num_iterations", "train.total_env_steps")
 
 
 def _load_builtin_runs() -> None:
-    from qdrl.runners import pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
+    from qdrl.runners import mo, pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
 
 
 @dataclasses.dataclass(frozen=True)
