@@ -65,31 +65,48 @@ def spea2_fitness(points: Array, mask: Array, k: int) -> tuple[Array, Array]:
     return jnp.where(mask, raw + density, jnp.inf), dist
 
 
+_Truncation = tuple[Array, Array, Array, Array, Array]  # alive, candidates, last value, uses, j
+
+
 def _spea2_truncate(dist: Array, keep: Array, size: int) -> Array:
-    """Removes, while more than `size` remain, the member whose sorted distances to the others
-    are lexicographically smallest (ties: the lowest index)."""
+    """Removes, while more than `size` remain, the member whose sorted distances to the other
+    remaining members are lexicographically smallest (ties: the lowest index).
+
+    Each row's sorted distances are walked one column at a time, and only while
+    candidates tie (the two members of the closest pair always tie on the first
+    column): column j of a row repeats the value of column j - 1 while the row holds
+    more remaining members at that distance than already read, else it is the
+    smallest distance above it. Masked reductions over the remaining members, no
+    sort. One flat loop: each step reads one more column or removes a member.
+    """
     n = dist.shape[0]
 
-    def lexmin(alive: Array) -> Array:
-        rows = jnp.sort(jnp.where(alive[None, :] & alive[:, None], dist, jnp.inf), axis=1)
+    def column(alive: Array, last_v: Array, used: Array) -> tuple[Array, Array]:
+        live = alive[None, :]
+        same = jnp.sum(live & (dist == last_v[:, None]), axis=1)
+        above = jnp.min(jnp.where(live & (dist > last_v[:, None]), dist, jnp.inf), axis=1)
+        repeat = same > used
+        return jnp.where(repeat, last_v, above), jnp.where(repeat, used + 1, 1)
 
-        def cond(c: tuple[Array, Array]) -> Array:
-            cand, col = c
-            return (jnp.sum(cand) > 1) & (col < n)
+    def first(alive: Array) -> _Truncation:
+        v, used = column(alive, jnp.full((n,), -jnp.inf), jnp.zeros((n,), jnp.int32))
+        cand = alive & (v == jnp.min(jnp.where(alive, v, jnp.inf)))
+        return alive, cand, v, used, jnp.ones((), jnp.int32)
 
-        def body(c: tuple[Array, Array]) -> tuple[Array, Array]:
-            cand, col = c
-            v = rows[:, col]
-            best = jnp.min(jnp.where(cand, v, jnp.inf))
-            return cand & (v == best), col + 1
+    def narrow(c: _Truncation) -> _Truncation:
+        alive, cand, last_v, used, j = c
+        v, used = column(alive, last_v, used)
+        return alive, cand & (v == jnp.min(jnp.where(cand, v, jnp.inf))), v, used, j + 1
 
-        cand, _ = jax.lax.while_loop(cond, body, (alive, jnp.zeros((), jnp.int32)))
-        return jnp.argmax(cand)
+    def remove(c: _Truncation) -> _Truncation:
+        alive, cand = c[0], c[1]
+        return first(alive.at[jnp.argmax(cand)].set(False))
 
-    def remove(alive: Array) -> Array:
-        return alive.at[lexmin(alive)].set(False)
+    def step(c: _Truncation) -> _Truncation:
+        tie = (jnp.sum(c[1]) > 1) & (c[4] < n)
+        return jax.lax.cond(tie, narrow, remove, c)
 
-    return jax.lax.while_loop(lambda a: jnp.sum(a) > size, remove, keep)
+    return jax.lax.while_loop(lambda c: jnp.sum(c[0]) > size, step, first(keep))[0]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

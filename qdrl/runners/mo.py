@@ -206,7 +206,7 @@ def _export(container: Any, out_dir: Path) -> None:
         arrays[f"genotype_{i}"] = np.asarray(leaf)
     if hasattr(container, "centroids"):
         arrays["centroids"] = np.asarray(container.centroids)
-    np.savez_compressed(out_dir / "repertoire.npz", **arrays)
+    np.savez_compressed(out_dir / "repertoire.npz", **arrays)  # type: ignore[arg-type]
     m, d = fit.shape[-1], desc.shape[-1]
     flat_f, flat_d = fit.reshape(-1, m), desc.reshape(-1, d)
     keep = np.all(np.isfinite(flat_f), axis=1)
@@ -222,7 +222,7 @@ def _export(container: Any, out_dir: Path) -> None:
 class MOMERun(_MOMixin, QDRun):
     """MOME: a Pareto front per cell (`[mome]`), the GA of `[emitter]`, on a multi-objective task."""
 
-    progress_keys = ("moqd_score", "global_hypervolume", "coverage", "evaluations_per_s")
+    progress_keys: tuple[str, ...] = ("moqd_score", "global_hypervolume", "coverage", "evaluations_per_s")
 
     def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
         super().__init__(sections, exp)
@@ -234,8 +234,9 @@ class MOMERun(_MOMixin, QDRun):
 
         base = super()._build(key)  # the cells and the GA emitter of a QD run
         c = self.mome_cfg
+        cells: Any = base.empty_repertoire
         repertoire = mome_repertoire(
-            base.empty_repertoire, self.example_genotype(), self._task.num_objectives,
+            cells, self.example_genotype(), self._task.num_objectives,
             c.pareto_front_max_length, c.overflow,
         )
         return MapElites(base.scoring_fn, base.emitter, repertoire, metrics_fn=self.metrics_fn())
@@ -245,7 +246,6 @@ class PopulationRun(_MOMixin, QDRun):
     """NSGA-II or SPEA2: a population of `[population]` with its survival rule, SBX and mutation."""
 
     def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
-        from qdrl.qd.map_elites import MapElites
         from qdrl.runners.qd import make_task_of
 
         self.sections = dict(sections)
@@ -281,10 +281,10 @@ class PopulationRun(_MOMixin, QDRun):
 
     def empty_repertoire(self, key: jax.Array | None = None, centroids: Any = None) -> Any:
         """The empty population."""
-        from qdrl.qd.populations import pareto_population
+        from qdrl.qd.populations import Survival, pareto_population
 
         del key, centroids
-        survival = "nsga2" if self.algorithm == "nsga2" else "spea2"
+        survival: Survival = "nsga2" if self.algorithm == "nsga2" else "spea2"
         return pareto_population(
             self.example_genotype(), self.pop_cfg.size, self._task.num_objectives,
             self._task.descriptor_size, survival,

@@ -224,8 +224,8 @@ def true_front(name: str, num_points: int, num_objectives: int = 3) -> np.ndarra
         if num_objectives != 3:
             raise ValueError(f"true_front: dtlz2 is drawn for 3 objectives, got {num_objectives}")
         side = max(2, int(math.sqrt(num_points)))
-        a, b = np.meshgrid(np.linspace(0, np.pi / 2, side), np.linspace(0, np.pi / 2, side))
-        a, b = a.ravel(), b.ravel()
+        grid_a, grid_b = np.meshgrid(np.linspace(0, np.pi / 2, side), np.linspace(0, np.pi / 2, side))
+        a, b = grid_a.ravel(), grid_b.ravel()
         pts = np.stack([np.cos(a) * np.cos(b), np.cos(a) * np.sin(b), np.sin(a)], axis=1)
     else:
         raise ValueError(f"true_front: no known front for task {name!r}")
