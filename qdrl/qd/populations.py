@@ -69,7 +69,7 @@ def spea2_fitness(points: Array, mask: Array, k: int) -> tuple[Array, Array]:
 _Truncation = tuple[Array, Array, Array, Array, Array]  # alive, candidates, last value, uses, j
 
 
-def _spea2_truncate(dist: Array, keep: Array, size: int) -> Array:
+def _spea2_truncate(points: Array, dist: Array, keep: Array, size: int) -> Array:
     """Removes, while more than `size` remain, the member whose sorted distances to the other
     remaining members are lexicographically smallest (ties: the lowest index).
 
@@ -79,6 +79,8 @@ def _spea2_truncate(dist: Array, keep: Array, size: int) -> Array:
     more remaining members at that distance than already read, else it is the
     smallest distance above it. Masked reductions over the remaining members, no
     sort. One flat loop: each step reads one more column or removes a member.
+    Candidates with equal objectives (clones) have equal rows and tie on every column:
+    the lowest index goes at once.
     """
     n = dist.shape[0]
 
@@ -104,7 +106,9 @@ def _spea2_truncate(dist: Array, keep: Array, size: int) -> Array:
         return first(alive.at[jnp.argmax(cand)].set(False))
 
     def step(c: _Truncation) -> _Truncation:
-        tie = (jnp.sum(c[1]) > 1) & (c[4] < n)
+        cand = c[1]
+        clones = jnp.all(jnp.where(cand[:, None], points == points[jnp.argmax(cand)], True))
+        tie = (jnp.sum(cand) > 1) & (c[4] < n) & ~clones
         return jax.lax.cond(tie, narrow, remove, c)
 
     return jax.lax.while_loop(lambda c: jnp.sum(c[0]) > size, step, first(keep))[0]
@@ -178,7 +182,7 @@ class ParetoPopulation:
             k = int(math.sqrt(total))
             fit, dist = spea2_fitness(f, mask, k)
             non_dominated = fit < 1.0
-            truncated = _spea2_truncate(dist, non_dominated, size)
+            truncated = _spea2_truncate(f, dist, non_dominated, size)
             # Too many non-dominated: the truncation's survivors; else the best F.
             key = jnp.where(jnp.sum(non_dominated) > size, jnp.where(truncated, 0.0, jnp.inf), fit)
             order = jnp.lexsort((jnp.arange(total), key))
