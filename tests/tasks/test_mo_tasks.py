@@ -54,7 +54,7 @@ def test_objectives_are_known_before_building_and_reference_points_are_checked()
     assert TASKS["dtlz2"](num_dims=7, num_objectives=4).num_objectives == 4
     with pytest.raises(ValueError, match=r"task.reference_point: expected 2 numbers"):
         TASKS["zdt1"](reference_point=(1.0,))
-    with pytest.raises(ValueError, match="task.num_dims: expected at least task.num_objectives=5"):
+    with pytest.raises(ValueError, match=r"task\.num_dims: expected at least task\.num_objectives=5"):
         TASKS["dtlz2"](num_dims=4, num_objectives=5)
 
 
