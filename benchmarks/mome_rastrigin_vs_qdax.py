@@ -11,8 +11,10 @@ qdrl runs `agents/mome_mo_rastrigin.toml` through `qdrl.experiment.run` (overflo
 "crowding", its default, and "index", QDax's rule); QDax runs in /work/venvs/qdax.
 The final repertoires' fitnesses (64, 50, 2) of both are scored by the same code
 (`qdrl.qd.pareto.hypervolume_exact`, moocore): MOQD score (sum of the cells'
-hypervolumes) and global hypervolume, reference (-150, -150). Each run writes one
-JSON line as it finishes.
+hypervolumes) and global hypervolume, w.r.t. QDax's reference (-150, -150), which no
+solution of 100 genes reaches (so both are 0 for every run), and w.r.t. (-1500, -1500).
+Each run writes one JSON line as it finishes and saves its final fitnesses (.npy
+beside the results).
 
     python benchmarks/mome_rastrigin_vs_qdax.py --seeds 3 --out benchmarks/results/mome_rastrigin_vs_qdax.jsonl
 """
@@ -30,7 +32,10 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 QDAX_PYTHON = "/work/venvs/qdax/bin/python"
-REFERENCE = (-150.0, -150.0)
+# QDax's reference point, and one the runs reach: with 100 genes no solution gets above
+# (-150, -150) (per gene, rastrigin(x) + rastrigin(x - 2.2) >= 6.24, so f1 + f2 <= -624), so
+# every MOQD score and hypervolume w.r.t. it is 0; (-1500, -1500) is 15 below the optimum per gene.
+REFERENCES = {"qdax": (-150.0, -150.0), "reachable": (-1500.0, -1500.0)}
 
 QDAX_CODE = r"""
 import functools, json, sys, time
@@ -133,12 +138,16 @@ def main() -> None:
                 out = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
             result = json.loads(out.stdout.strip().splitlines()[-1])
             fit = np.asarray(result.pop("fitnesses"), np.float64)  # (64, 50, 2), -inf where empty
-            cells = [hypervolume_exact(front, REFERENCE) for front in fit]
+            np.save(args.out.with_name(f"{args.out.stem}_{impl}_seed{seed}.npy"), fit.astype(np.float32))
             filled = np.any(np.all(np.isfinite(fit), axis=-1), axis=-1)
+            scores = {}
+            for name, ref in REFERENCES.items():
+                cells = [hypervolume_exact(front, ref) for front in fit]
+                scores[f"moqd_score_{name}"] = float(np.sum(cells))
+                scores[f"global_hypervolume_{name}"] = hypervolume_exact(fit.reshape(-1, 2), ref)
             row = {
-                "impl": impl, "seed": seed,
-                "moqd_score": float(np.sum(cells)),
-                "global_hypervolume": hypervolume_exact(fit.reshape(-1, 2), REFERENCE),
+                "impl": impl, "seed": seed, **scores,
+                "max_objective": np.max(fit.reshape(-1, 2), axis=0).tolist(),
                 "coverage": float(filled.mean()),
                 "num_solutions": int(np.all(np.isfinite(fit), axis=-1).sum()),
                 **result,

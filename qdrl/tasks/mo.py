@@ -87,7 +87,10 @@ def mo_rastrigin(
     """QDax's multi-objective rastrigin (MOME example): -rastrigin(x) and -rastrigin(x - lag).
 
     Genotypes in [-2, 4]^num_dims, descriptor (x_0, x_1) in [-2, 4]^2, reference
-    point (-150, -150).
+    point (-150, -150) as in QDax. With many genes no solution reaches it: per gene,
+    rastrigin(x) + rastrigin(x - lag) >= 6.24 (lag 2.2), so f1 + f2 <= -6.24
+    num_dims, and both objectives above -150 need num_dims < 48; for 100 genes give
+    a lower one (qdrl's specs use (-1500, -1500), 15 per gene).
     """
     minval, maxval = -2.0, 4.0
 
