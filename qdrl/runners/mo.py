@@ -12,7 +12,9 @@ The runs are `QDRun`s with another container and metrics: building, compiling,
 checkpointing and resuming are QDRun's. Each log point records the metrics of
 `qdrl.qd.mo_metrics` (exact hypervolumes: in the compiled loop for two objectives,
 on the host with moocore for more); the end writes `front.csv` (the global front),
-`repertoire.npz` / `repertoire.csv` (every stored solution) and plots of the global
+`repertoire.npz` / `repertoire.csv` (MOME) or `population.npz` / `population.csv`
+(every stored solution; `qdrl.load_run(path).repertoire` gives the container back)
+and plots of the global
 front, the per-cell hypervolumes and a few cells' fronts.
 """
 
@@ -111,6 +113,7 @@ class _MOMixin:
     """What MOME and the populations share: metrics, log rows and the final artefacts."""
 
     progress_keys: tuple[str, ...] = ("global_hypervolume", "num_solutions", "evaluations_per_s")
+    export_name = "population"  # the final container's files: <name>.npz, <name>.csv
     _task: Any
     algorithm: str
     task: str
@@ -160,7 +163,7 @@ class _MOMixin:
         front = global_front(container)
         hv = exact_hypervolumes(container, ref)
         _write_front(front, out_dir / "front.csv")
-        _export(container, out_dir)
+        _export(container, out_dir, self.export_name)
         label = f"{self.algorithm} on {self.task}"
         known = None
         if self.task in ("zdt1", "zdt2", "zdt3") or (self.task == "dtlz2" and container.num_objectives == 3):
@@ -197,32 +200,34 @@ def _write_front(front: np.ndarray, path: Path) -> None:
     np.savetxt(path, front, delimiter=",", header=header, comments="")
 
 
-def _export(container: Any, out_dir: Path) -> None:
-    """`repertoire.npz` (fitnesses, descriptors, genotype leaves, centroids) and one CSV row per solution."""
+def _export(container: Any, out_dir: Path, name: str) -> None:
+    """`<name>.npz` (as `export_npz`: fitnesses, descriptors, genotype leaves named `genotypes` +
+    key path, centroids) and `<name>.csv`, one row per stored solution (cell and slot, or slot)."""
     fit = np.asarray(container.fitnesses)
     desc = np.asarray(container.descriptors)
     arrays: dict[str, np.ndarray] = {"fitnesses": fit, "descriptors": desc}
-    for i, leaf in enumerate(jax.tree.leaves(container.genotypes)):
-        arrays[f"genotype_{i}"] = np.asarray(leaf)
+    for key_path, leaf in jax.tree_util.tree_flatten_with_path(container.genotypes)[0]:
+        arrays["genotypes" + jax.tree_util.keystr(key_path)] = np.asarray(leaf)
     if hasattr(container, "centroids"):
         arrays["centroids"] = np.asarray(container.centroids)
-    np.savez_compressed(out_dir / "repertoire.npz", **arrays)  # type: ignore[arg-type]
+    np.savez_compressed(out_dir / f"{name}.npz", **arrays)  # type: ignore[arg-type]
     m, d = fit.shape[-1], desc.shape[-1]
     flat_f, flat_d = fit.reshape(-1, m), desc.reshape(-1, d)
     keep = np.all(np.isfinite(flat_f), axis=1)
-    slots = fit.shape[1] if fit.ndim == 3 else 1
+    slots = fit.shape[1] if fit.ndim == 3 else len(fit)
     index = np.arange(len(flat_f))
     cols = [index // slots, index % slots, *flat_f.T, *flat_d.T]
     names = ["cell", "slot", *(f"objective_{k}" for k in range(m)), *(f"descriptor_{k}" for k in range(d))]
     table = np.stack(cols, axis=1)[keep]
     fmt = ["%d", "%d", *(["%.9g"] * (m + d))]
-    np.savetxt(out_dir / "repertoire.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)
+    np.savetxt(out_dir / f"{name}.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)
 
 
 class MOMERun(_MOMixin, QDRun):
     """MOME: a Pareto front per cell (`[mome]`), the GA of `[emitter]`, on a multi-objective task."""
 
     progress_keys: tuple[str, ...] = ("moqd_score", "global_hypervolume", "coverage", "evaluations_per_s")
+    export_name = "repertoire"
 
     def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
         super().__init__(sections, exp)
@@ -230,16 +235,19 @@ class MOMERun(_MOMixin, QDRun):
 
     def _build(self, key: jax.Array) -> MapElites:
         from qdrl.qd.map_elites import MapElites
+
+        base = super()._build(key)  # the GA emitter of a QD run, on `empty_repertoire`
+        return MapElites(base.scoring_fn, base.emitter, base.empty_repertoire, metrics_fn=self.metrics_fn())
+
+    def empty_repertoire(self, key: jax.Array | None = None, centroids: Any = None) -> Any:
+        """The empty MOME repertoire on the cells of `[repertoire]` (see `QDRun.empty_repertoire`)."""
         from qdrl.qd.repertoires.mome import mome_repertoire
 
-        base = super()._build(key)  # the cells and the GA emitter of a QD run
         c = self.mome_cfg
-        cells: Any = base.empty_repertoire
-        repertoire = mome_repertoire(
-            cells, self.example_genotype(), self._task.num_objectives,
-            c.pareto_front_max_length, c.overflow,
+        return mome_repertoire(
+            super().empty_repertoire(key, centroids), self.example_genotype(),
+            self._task.num_objectives, c.pareto_front_max_length, c.overflow,
         )
-        return MapElites(base.scoring_fn, base.emitter, repertoire, metrics_fn=self.metrics_fn())
 
 
 class PopulationRun(_MOMixin, QDRun):
