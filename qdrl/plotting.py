@@ -522,7 +522,9 @@ def _front_axes(fig: Figure, num_objectives: int) -> Axes:
 
 
 def _staircase(ax: Axes, front: np.ndarray, reference: Sequence[float], **style: Any) -> None:
-    """The attainment boundary of a 2-objective front (maximisation) down to the reference."""
+    """The attainment boundary of a 2-objective front (maximisation) down to the reference; only
+    the points that dominate the reference (the others add no hypervolume) are joined."""
+    front = front[np.all(front > np.asarray(reference, np.float64)[:2], axis=1)]
     if not len(front):
         return
     pts = front[np.argsort(-front[:, 0], kind="stable")]
