@@ -114,6 +114,7 @@ def run_qdrl(seed: int, overflow: str) -> dict[str, object]:
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--iterations", type=int, default=1000)
     parser.add_argument("--one", nargs=2, help=argparse.SUPPRESS)  # internal: SEED OVERFLOW
@@ -126,7 +127,7 @@ def main() -> None:
     from qdrl.qd.pareto import hypervolume_exact
 
     env = {**os.environ, "PYTHONPATH": f"{REPO}:{os.environ.get('PYTHONPATH', '')}"}
-    for seed in range(args.seeds):
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         for impl in ("qdrl", "qdax", "qdrl_index"):  # alternating
             if impl == "qdax":
                 cmd = [QDAX_PYTHON, "-c", QDAX_CODE, str(seed), str(args.iterations), "100"]
