@@ -43,6 +43,7 @@ from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, policy_task
 from qdrl.types import Array
 
 __all__ = [
+    "BRAX_MULTI_TASKS",
     "MO_TASKS",
     "TRUE_HYPERVOLUME",
     "ant_multi",
@@ -327,6 +328,10 @@ MO_TASKS: dict[str, Callable[..., Task]] = {
     "walker2d_multi": walker2d_multi,
     "ant_multi": ant_multi,
 }
+
+
+# The policy tasks among them (brax rollouts).
+BRAX_MULTI_TASKS = ("halfcheetah_multi", "walker2d_multi", "ant_multi")
 
 
 def num_objectives_of(table: Mapping[str, Any]) -> int:
