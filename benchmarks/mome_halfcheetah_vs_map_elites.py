@@ -56,6 +56,7 @@ def run_map_elites(run_: Any, seed: int) -> tuple[np.ndarray, float]:
     from qdrl.qd.base import Evaluation
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
+    from qdrl.runners.qd import QDRun
 
     task, ec, qd = run_.qd_task, run_.emitter_cfg, run_.qd_cfg
 
@@ -64,7 +65,7 @@ def run_map_elites(run_: Any, seed: int) -> tuple[np.ndarray, float]:
         return e._replace(fitnesses=e.fitnesses[:, 0])
 
     cvt_key, init_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)  # as QDRun._init
-    cells = run_.empty_repertoire(cvt_key)
+    cells = QDRun.empty_repertoire(run_, cvt_key)  # the cells of MOME's repertoire, one elite each
     emitter = isoline_emitter(ec.batch_size, ec.iso_sigma, ec.line_sigma)
     me = MapElites(forward_only, emitter, cells)
     state = jax.jit(me.init)(task.init_genotypes(init_key, qd.init_batch_size), run_key)
