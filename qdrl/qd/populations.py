@@ -8,7 +8,9 @@ survival rule:
 
 - "nsga2" (Deb, Pratap, Agarwal & Meyarivan 2002, "A fast and elitist
   multiobjective genetic algorithm: NSGA-II"): whole fronts of the non-dominated
-  sorting in order, the last one cut by decreasing crowding distance; the
+  sorting in order, the last one cut by decreasing crowding distance (clones, copies
+  of the objectives of an earlier member, after the distinct members of their front,
+  which pymoo's duplicate elimination also does); the
   tournament prefers the lower front, then the larger crowding distance (both as
   computed in the merged population, as pymoo does).
 - "spea2" (Zitzler, Laumanns & Thiele 2001, "SPEA2: Improving the strength Pareto
@@ -175,7 +177,11 @@ class ParetoPopulation:
         if self.survival == "nsga2":
             ranks = front_ranks(f, mask)
             crowd = crowding_distance(f, mask, ranks)
-            order = jnp.lexsort((jnp.arange(total), -crowd, ranks))
+            # A copy of an earlier member's objectives (a clone) goes after the distinct members
+            # of its front, as pymoo's duplicate elimination keeps clones out of the population.
+            same = jnp.all(f[:, None, :] == f[None, :, :], axis=-1) & mask[None, :]
+            clone = jnp.any(jnp.tril(same, k=-1), axis=1)
+            order = jnp.lexsort((jnp.arange(total), -crowd, clone, ranks))
             chosen = order[:size]
             rank, score = ranks[chosen], crowd[chosen]
         else:

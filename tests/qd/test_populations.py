@@ -20,11 +20,13 @@ SIZE, BATCH = 6, 6
 
 
 def _nsga2_survivors(f: np.ndarray) -> list[int]:
-    """Deb et al. 2002: whole fronts, the last cut by crowding (stable: lower index first)."""
+    """Deb et al. 2002: whole fronts, the last cut by crowding (stable: lower index first);
+    copies of an earlier member's objectives after the distinct members of their front."""
     mask = np.ones(len(f), bool)
     ranks = _ranks(f, mask)
     crowd = _crowding(f, mask, ranks)
-    order = sorted(range(len(f)), key=lambda i: (ranks[i], -crowd[i], i))
+    clone = [any(np.array_equal(f[i], f[j]) for j in range(i)) for i in range(len(f))]
+    order = sorted(range(len(f)), key=lambda i: (ranks[i], clone[i], -crowd[i], i))
     return sorted(order[:SIZE])
 
 
