@@ -154,7 +154,7 @@ LENGTH_KEYS: tuple[str, ...] = ("qd.num_iterations", "train.total_env_steps", "c
 
 
 def _load_builtin_runs() -> None:
-    from qdrl.runners import cma_es, pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
+    from qdrl.runners import cma_es, mo, pbt, qd, rl, skills  # noqa: F401  (registers their algorithms)
 
 
 @dataclasses.dataclass(frozen=True)

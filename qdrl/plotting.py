@@ -24,8 +24,11 @@ from matplotlib.figure import Figure
 __all__ = [
     "COUNTER_KEYS",
     "default_y_keys",
+    "plot_cell_fronts",
+    "plot_cell_hypervolumes",
     "plot_comparison",
     "plot_curves",
+    "plot_pareto_front",
     "plot_repertoire",
     "plot_skills",
 ]
@@ -509,4 +512,150 @@ def plot_skills(
         axes[1].set_title(f"passive archive: {filled} / {fitnesses.size} cells")
         axes[1].set_xlabel(f"descriptor {dx}")
         fig.colorbar(mesh, ax=axes[1], label="fitness (return)")
+    return _save(fig, path, title)
+
+
+def _front_axes(fig: Figure, num_objectives: int) -> Axes:
+    if num_objectives >= 3:
+        return fig.add_subplot(projection="3d")
+    return fig.subplots()
+
+
+def _staircase(ax: Axes, front: np.ndarray, reference: Sequence[float], **style: Any) -> None:
+    """The attainment boundary of a 2-objective front (maximisation) down to the reference; only
+    the points that dominate the reference (the others add no hypervolume) are joined."""
+    front = front[np.all(front > np.asarray(reference, np.float64)[:2], axis=1)]
+    if not len(front):
+        return
+    pts = front[np.argsort(-front[:, 0], kind="stable")]
+    xs, ys = [float(pts[0, 0])], [float(reference[1])]
+    best = float(reference[1])
+    for x, y in pts:
+        if y > best:
+            xs += [float(x), float(x)]
+            ys += [best, float(y)]
+            best = float(y)
+    xs.append(float(reference[0]))
+    ys.append(best)
+    ax.plot(xs, ys, drawstyle="default", **style)
+
+
+def plot_pareto_front(
+    fronts: Mapping[str, np.ndarray],
+    path: str | Path,
+    reference: Sequence[float] | None = None,
+    true_front: np.ndarray | None = None,
+    title: str = "",
+    objective_names: Sequence[str] | None = None,
+) -> Path:
+    """Writes a PNG of one or more Pareto fronts (objectives maximised), e.g. of several algorithms.
+
+    Args:
+      fronts: label -> (k, M) points; M = 2 draws each front with its attainment
+        boundary down to `reference`, M >= 3 a 3-D scatter of the first three objectives.
+      path: PNG to write.
+      reference: the hypervolume's reference point (drawn as a cross).
+      true_front: (k, M) points of the known front, drawn as a grey line / cloud.
+      objective_names: axis labels (default "objective k").
+    """
+    m = max([np.asarray(f).shape[1] for f in fronts.values()] or [2])
+    names = list(objective_names or [f"objective {k}" for k in range(m)])
+    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = _front_axes(fig, m)
+    if true_front is not None:
+        t = np.asarray(true_front, np.float64)
+        if m >= 3:
+            ax.scatter(t[:, 0], t[:, 1], t[:, 2], s=2, c="0.7", label="true front")  # type: ignore[misc]
+        else:
+            t = t[np.argsort(t[:, 0])]
+            ax.plot(t[:, 0], t[:, 1], ".", ms=2, c="0.6", label="true front")
+    for i, (label, front) in enumerate(fronts.items()):
+        f = np.asarray(front, np.float64)
+        colour = f"C{i}"
+        if m >= 3:
+            ax.scatter(f[:, 0], f[:, 1], f[:, 2], s=8, c=colour, label=f"{label} ({len(f)})")  # type: ignore[misc]
+        else:
+            ax.scatter(f[:, 0], f[:, 1], s=10, c=colour, label=f"{label} ({len(f)})", zorder=3)
+            if reference is not None:
+                _staircase(ax, f, reference, c=colour, lw=0.8)
+    if reference is not None and m == 2:
+        ax.plot([reference[0]], [reference[1]], "kx", label="reference point")
+    ax.set_xlabel(names[0])
+    ax.set_ylabel(names[1])
+    if m >= 3:
+        ax.set_zlabel(names[2])  # type: ignore[attr-defined]
+    ax.legend(loc="best", fontsize="small")
+    return _save(fig, path, title)
+
+
+class _CellValues:
+    """A repertoire-shaped view of one value per cell, for `plot_repertoire`."""
+
+    def __init__(self, layout: Any, values: np.ndarray) -> None:
+        self.fitnesses = values
+        self.descriptors = np.asarray(layout.centroids)
+        self.centroids = self.descriptors
+        self.grid_shape = getattr(layout, "grid_shape", None)
+        self.low = getattr(layout, "low", None)
+        self.high = getattr(layout, "high", None)
+
+
+def plot_cell_hypervolumes(
+    layout: Any,
+    hypervolumes: np.ndarray,
+    path: str | Path,
+    low: float | Sequence[float],
+    high: float | Sequence[float],
+    title: str = "",
+) -> Path:
+    """Writes a PNG heatmap of the hypervolume of each cell's front (MOME); empty cells blank.
+
+    `layout` is the repertoire's cells (a `CellRepertoire`, or anything with
+    `centroids` and, for a grid, `grid_shape`, `low`, `high`); `hypervolumes` (C,)
+    with 0 or -inf for empty cells. The colour bar's values are hypervolumes.
+    """
+    values = np.asarray(hypervolumes, np.float64)
+    values = np.where(values > 0, values, -np.inf)
+    heading = f"{title}: hypervolume per cell" if title else "hypervolume per cell"
+    return plot_repertoire(_CellValues(layout, values), path, low, high, title=heading)
+
+
+def plot_cell_fronts(
+    fitnesses: np.ndarray,
+    hypervolumes: np.ndarray,
+    path: str | Path,
+    reference: Sequence[float] | None = None,
+    num_cells: int = 4,
+    title: str = "",
+) -> Path:
+    """Writes a PNG of a few cells' fronts (MOME), the first two objectives: the cells at the
+    maximum, upper quartile, median and lower quartile of the per-cell hypervolume.
+
+    `fitnesses` (C, P, M) with -inf rows for empty slots; `hypervolumes` (C,).
+    """
+    f = np.asarray(fitnesses, np.float64)
+    hv = np.asarray(hypervolumes, np.float64)
+    filled = np.flatnonzero(np.any(np.all(np.isfinite(f), axis=-1), axis=-1))
+    ranked = filled[np.argsort(-hv[filled], kind="stable")]
+    picks: list[int] = []
+    for q in np.linspace(0.0, 0.75, num_cells):
+        if len(ranked):
+            c = int(ranked[min(len(ranked) - 1, int(q * len(ranked)))])
+            if c not in picks:
+                picks.append(c)
+    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for i, c in enumerate(picks):
+        front = f[c][np.all(np.isfinite(f[c]), axis=-1)]
+        ax.scatter(front[:, 0], front[:, 1], s=12, c=f"C{i}", label=f"cell {c}: hypervolume {hv[c]:.4g}")
+        if reference is not None:
+            _staircase(ax, front[:, :2], reference[:2], c=f"C{i}", lw=0.8)
+    if not picks:
+        ax.text(0.5, 0.5, "empty repertoire", ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlabel("objective 0")
+    ax.set_ylabel("objective 1")
+    if picks:
+        ax.legend(loc="best", fontsize="small")
     return _save(fig, path, title)

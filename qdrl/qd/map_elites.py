@@ -47,9 +47,12 @@ def _batch_size(genotypes: Genotype, fitnesses: Array) -> int:
     return int(leaves[0].shape[0]) if leaves else int(fitnesses.shape[0])
 
 
-def _check_evaluation(n: int, fitnesses: Array, descriptors: Array, descriptor_size: int) -> None:
-    if fitnesses.shape != (n,):
-        raise ValueError(f"fitnesses: expected shape ({n},), got {fitnesses.shape}")
+def _check_evaluation(
+    n: int, fitnesses: Array, descriptors: Array, descriptor_size: int, num_objectives: int | None = None
+) -> None:
+    want = (n,) if num_objectives is None else (n, num_objectives)
+    if fitnesses.shape != want:
+        raise ValueError(f"fitnesses: expected shape {want}, got {fitnesses.shape}")
     if descriptors.shape != (n, descriptor_size):
         raise ValueError(
             f"descriptors: expected shape ({n}, {descriptor_size}), got {descriptors.shape}"
@@ -70,6 +73,8 @@ def _check_some_finite(n: int, evaluation: Evaluation) -> None:
     if isinstance(fitnesses, jax.core.Tracer) or isinstance(descriptors, jax.core.Tracer):
         return
     finite_fit = jnp.isfinite(jnp.asarray(fitnesses, jnp.float32))
+    if finite_fit.ndim > 1:  # multi-objective: every objective finite
+        finite_fit = jnp.all(finite_fit, axis=-1)
     finite_desc = jnp.all(jnp.isfinite(jnp.asarray(descriptors, jnp.float32)), axis=-1)
     if not bool(jnp.any(finite_fit & finite_desc)):
         raise ValueError(
@@ -148,6 +153,8 @@ class MapElites:
         self.qd_offset = qd_offset
         self.metrics_fn = metrics_fn
         self.descriptor_size = int(repertoire.descriptors.shape[-1])
+        # Multi-objective containers (MOME, Pareto populations) declare M: fitnesses are (n, M).
+        self.num_objectives: int | None = getattr(repertoire, "num_objectives", None)
 
     def init(self, genotypes: Genotype, key: PRNGKey) -> QDState:
         """Evaluate an initial population, fill the repertoire with it, start the emitter.
@@ -166,7 +173,9 @@ class MapElites:
         a finite fitness and a finite descriptor: the repertoire would stay empty.
         """
         n = _batch_size(genotypes, evaluation.fitnesses)
-        _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
+        _check_evaluation(
+            n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size, self.num_objectives
+        )
         _check_some_finite(n, evaluation)
         emitter_key, key = jax.random.split(key)
         repertoire, _ = self.empty_repertoire.add(
@@ -219,7 +228,9 @@ class MapElites:
     ) -> tuple[QDState, dict[str, Array]]:
         """Offer evaluated offspring to the repertoire and update the emitter."""
         n = _batch_size(genotypes, evaluation.fitnesses)
-        _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
+        _check_evaluation(
+            n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size, self.num_objectives
+        )
         key, update_key = jax.random.split(state.key)
         repertoire, added = state.repertoire.add(
             genotypes, evaluation.descriptors, evaluation.fitnesses

@@ -16,6 +16,7 @@ from qdrl.tasks.deceptive import archimedean_spiral, deceptive_evolvability, ssf
 from qdrl.tasks.functions import rastrigin, rastrigin_proj, sphere, sphere_proj
 from qdrl.tasks.jumanji_qd import snake
 from qdrl.tasks.lp import lp_plateau, lp_rastrigin, lp_sphere
+from qdrl.tasks.mo import MO_TASKS
 from qdrl.tasks.point_maze import point_maze
 
 TASKS: dict[str, Callable[..., Task]] = {
@@ -34,6 +35,7 @@ TASKS: dict[str, Callable[..., Task]] = {
     "point_maze": point_maze,
     "snake": snake,
     **BRAX_TASKS,
+    **MO_TASKS,
 }
 
 

@@ -54,12 +54,23 @@ class Task:
     policy_scoring: Callable[..., ScoringFn] | None = None
     episode_descriptor: str | None = None
     gradient_scoring_fn: ScoringFn | None = None
+    # Multi-objective tasks (`qdrl.tasks.mo`): fitnesses are (n, num_objectives), every
+    # objective maximised, and hypervolumes are measured from `reference_point`.
+    num_objectives: int = 1
+    reference_point: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
             raise ValueError(
                 f"{self.name}: descriptor_low has {len(self.descriptor_low)} entries, "
                 f"descriptor_high {len(self.descriptor_high)}"
+            )
+        if self.num_objectives > 1 and (
+            self.reference_point is None or len(self.reference_point) != self.num_objectives
+        ):
+            raise ValueError(
+                f"{self.name}: a task of {self.num_objectives} objectives needs a reference "
+                f"point of {self.num_objectives} values, got {self.reference_point}"
             )
         if not self.genotype_low < self.genotype_high:
             raise ValueError(

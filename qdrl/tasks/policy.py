@@ -74,6 +74,7 @@ def policy_scoring_fn(
     fixed_start: bool = True,
     eval_batch: int | None = DEFAULT_EVAL_BATCH,
     record: RecordFn | None = None,
+    objectives: RecordFn | None = None,
 ) -> ScoringFn:
     """A scoring function of batched policy parameters on `env`.
 
@@ -96,12 +97,23 @@ def policy_scoring_fn(
       record: also hand back `extras["recorded"]`, (T, n, ...): what this function of
         the batched env state keeps after each step (`qdrl.rollout.unroll_recorded`),
         e.g. brax's link poses to render an episode. The episodes are unchanged.
+      objectives: for multi-objective tasks, the per-step rewards of M objectives,
+        (n, M), read from the batched env state after each step (e.g. brax's
+        forward-reward and control-cost metrics); the fitness is then their
+        episode sums (n, M) over the episode's valid steps instead of the return.
+        It rides on the same rollout as `record`.
     """
     if descriptor not in ("final", "mean"):
         raise ValueError(f"descriptor: expected 'final' or 'mean', got {descriptor!r}")
     if eval_batch is not None and eval_batch < 1:
         raise ValueError(f"eval_batch: expected a positive integer or None, got {eval_batch}")
     start = jax.random.PRNGKey(0) if fixed_start else None
+    recorder: RecordFn | None = record
+    if objectives is not None:
+        user_record, objective_fn = record, objectives
+
+        def recorder(state: Any) -> Any:
+            return (objective_fn(state), None if user_record is None else user_record(state))
 
     def rollout(genotypes: Genotype, key: PRNGKey) -> Episodes:
         n = jax.tree.leaves(genotypes)[0].shape[0]
@@ -109,7 +121,7 @@ def policy_scoring_fn(
         def policy(obs: jax.Array, _: PRNGKey) -> jax.Array:
             return jax.vmap(network.apply)(genotypes, obs)
 
-        return run_episodes(env, policy, key, n, num_steps, start_key=start, record=record)
+        return run_episodes(env, policy, key, n, num_steps, start_key=start, record=recorder)
 
     def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
         n = jax.tree.leaves(genotypes)[0].shape[0]
@@ -125,11 +137,16 @@ def policy_scoring_fn(
             "mask": episodes.mask,
             "descriptors": desc.astype(jnp.float32),
         }
+        fitnesses = episodes.returns
+        recorded = episodes.recorded
+        if objectives is not None:
+            per_step, recorded = recorded  # (T, n, M), the user's record
+            fitnesses = jnp.sum(per_step * episodes.mask[..., None], axis=0)
         if record is not None:
-            extras["recorded"] = episodes.recorded
+            extras["recorded"] = recorded
         # A policy whose rollout blew up (NaN return) is rejected by the repertoire.
         return Evaluation(
-            fitnesses=episodes.returns.astype(jnp.float32),
+            fitnesses=fitnesses.astype(jnp.float32),
             descriptors=desc.astype(jnp.float32),
             extras=extras,
             env_steps=jnp.sum(episodes.lengths).astype(jnp.int32),
@@ -191,6 +208,8 @@ def policy_task(
     max_fitness: float | None = None,
     clip_descriptors: bool = True,
     eval_batch: int | None = DEFAULT_EVAL_BATCH,
+    objectives: RecordFn | None = None,
+    reference_point: Sequence[float] | None = None,
 ) -> Task:
     """A `Task` whose genotypes are MLP policies acting in `env` for one episode each.
 
@@ -198,7 +217,12 @@ def policy_task(
     ("final" or "mean" over its steps), clipped to the bounds if `clip_descriptors`.
     Genotypes are unbounded parameter trees (`genotype_low/high` = -inf/inf).
     Episodes are rolled out in blocks of `eval_batch` (see `policy_scoring_fn`).
+    With `objectives` (per-step rewards (n, M) of the env state, see
+    `policy_scoring_fn`) the fitness is their episode sums and the task has M
+    objectives, measured from `reference_point`.
     """
+    if objectives is not None and reference_point is None:
+        raise ValueError(f"{name}: a task with objectives needs a reference_point")
     low = jnp.asarray(descriptor_low, jnp.float32)
     high = jnp.asarray(descriptor_high, jnp.float32)
     if low.shape != (env.descriptor_size,) or high.shape != (env.descriptor_size,):
@@ -224,7 +248,7 @@ def policy_task(
         return policy_scoring_fn(
             env, network if policy is None else policy, descriptor,
             descriptor_fn=clip if clip_descriptors else None, fixed_start=fixed_start,
-            eval_batch=eval_batch, record=record,
+            eval_batch=eval_batch, record=record, objectives=objectives,
         )
 
     return Task(
@@ -242,4 +266,6 @@ def policy_task(
         env=env,
         policy_scoring=scoring_for,
         episode_descriptor=descriptor,
+        num_objectives=1 if objectives is None else len(reference_point or ()),
+        reference_point=None if reference_point is None else tuple(float(v) for v in reference_point),
     )

@@ -102,6 +102,13 @@ def _polynomial_mutation_leaf(
     """Mutates `num_to_mutate` entries of each row of x (n, d)."""
     mask_key, rand_key = jax.random.split(key)
     mask = _gene_masks(mask_key, x.shape[0], x.shape[1], num_to_mutate)
+    return _polynomial_step(x, mask, rand_key, eta, minval, maxval)
+
+
+def _polynomial_step(
+    x: Array, mask: Array, rand_key: PRNGKey, eta: float, minval: float, maxval: float
+) -> Array:
+    """Deb's bounded polynomial mutation of the entries of x (n, d) where `mask` is True."""
     span = maxval - minval
     x = jnp.clip(x, minval, maxval)
     delta_1 = (x - minval) / span
@@ -187,6 +194,105 @@ def polynomial_crossover(
         d = flat_a.shape[1]
         masks = _gene_masks(leaf_key, n, d, int(proportion_var_to_change * d))
         children.append(jnp.where(masks, flat_b, flat_a).reshape(a.shape))
+    return jax.tree.unflatten(treedef, children)
+
+
+def bernoulli_polynomial_mutation(
+    x: Genotype, key: PRNGKey, eta: float, mutation_prob: float, minval: float, maxval: float
+) -> Genotype:
+    """Deb's bounded polynomial mutation of each gene independently with probability `mutation_prob`.
+
+    The mutation of NSGA-II (Deb et al. 2002) and pymoo's `PM` (`prob_var`, usually
+    1/d): the same step as `polynomial_mutation`, but every gene is mutated with
+    probability `mutation_prob` rather than a fixed number of genes per individual.
+    Keys: leaf i uses `mask_key, rand_key = split(split(key, num_leaves)[i])`.
+    """
+    if not 0.0 <= mutation_prob <= 1.0:
+        raise ValueError(f"mutation_prob must be in [0, 1], got {mutation_prob}")
+    if not minval < maxval:
+        raise ValueError(f"minval ({minval}) must be below maxval ({maxval})")
+    leaves, treedef = jax.tree.flatten(x)
+    leaf_keys = jax.random.split(key, len(leaves))
+    children = []
+    for leaf, leaf_key in zip(leaves, leaf_keys, strict=True):
+        flat = _per_individual(leaf)
+        mask_key, rand_key = jax.random.split(leaf_key)
+        mask = jax.random.bernoulli(mask_key, mutation_prob, flat.shape)
+        child = _polynomial_step(flat, mask, rand_key, eta, minval, maxval)
+        children.append(child.reshape(leaf.shape))
+    return jax.tree.unflatten(treedef, children)
+
+
+def _sbx_leaf(
+    a: Array, b: Array, key: PRNGKey, eta: float, minval: float, maxval: float,
+    crossover_prob: float, prob_var: float,
+) -> Array:
+    """One SBX child of each pair of rows of a, b (n, d) (see `sbx_crossover`)."""
+    pair_key, var_key, u_key, swap_key = jax.random.split(key, 4)
+    n, d = a.shape
+    crossed = jax.random.bernoulli(pair_key, crossover_prob, (n, 1)) & jax.random.bernoulli(
+        var_key, prob_var, (n, d)
+    )
+    crossed = crossed & (jnp.abs(a - b) > 1e-14)
+    y1, y2 = jnp.minimum(a, b), jnp.maximum(a, b)
+    gap = jnp.where(crossed, y2 - y1, 1.0)
+    u = jax.random.uniform(u_key, (n, d), a.dtype)
+    power = 1.0 / (eta + 1.0)
+
+    def spread(beta: Array) -> Array:
+        alpha = 2.0 - beta ** -(eta + 1.0)
+        return jnp.where(
+            u <= 1.0 / alpha, (u * alpha) ** power, (1.0 / (2.0 - u * alpha)) ** power
+        )
+
+    c1 = 0.5 * (y1 + y2 - spread(1.0 + 2.0 * (y1 - minval) / gap) * (y2 - y1))
+    c2 = 0.5 * (y1 + y2 + spread(1.0 + 2.0 * (maxval - y2) / gap) * (y2 - y1))
+    c1, c2 = jnp.clip(c1, minval, maxval), jnp.clip(c2, minval, maxval)
+    child = jnp.where(jax.random.bernoulli(swap_key, 0.5, (n, d)), c2, c1)
+    return jnp.where(crossed, child, a)
+
+
+def sbx_crossover(
+    x1: Genotype,
+    x2: Genotype,
+    key: PRNGKey,
+    eta: float,
+    minval: float,
+    maxval: float,
+    crossover_prob: float = 0.9,
+    prob_var: float = 0.5,
+) -> Genotype:
+    """Simulated binary crossover, bounded (Deb & Agrawal 1995; NSGA-II, Deb et al. 2002).
+
+    Each pair crosses with probability `crossover_prob` (else the child is x1), and
+    then each gene with probability `prob_var` (and only where the parents differ).
+    For parents y1 <= y2 in [minval, maxval] and u ~ U(0, 1), with
+    beta = 1 + 2 (y1 - minval) / (y2 - y1) on the low side (1 + 2 (maxval - y2) /
+    (y2 - y1) on the high side), alpha = 2 - beta^-(eta+1) and
+    beta_q = (u alpha)^(1/(eta+1)) if u <= 1/alpha else (1 / (2 - u alpha))^(1/(eta+1)),
+    the two children are (y1 + y2 -/+ beta_q (y2 - y1)) / 2, clipped to the bounds;
+    the bounded form of Deb's NSGA-II code and pymoo's `SBX`. pymoo keeps both
+    children of a pair (swapping each gene between them with probability 1/2);
+    here each pair gives one child, one of the two values at random per gene, so
+    that a batch of n pairs gives n offspring. Larger eta, children closer to the
+    parents.
+    """
+    for name, p in (("crossover_prob", crossover_prob), ("prob_var", prob_var)):
+        if not 0.0 <= p <= 1.0:
+            raise ValueError(f"{name} must be in [0, 1], got {p}")
+    if not minval < maxval:
+        raise ValueError(f"minval ({minval}) must be below maxval ({maxval})")
+    leaves_1, treedef = jax.tree.flatten(x1)
+    leaves_2 = _same_structure_leaves(treedef, x2)
+    leaf_keys = jax.random.split(key, len(leaves_1))
+    children = []
+    for a, b, k in zip(leaves_1, leaves_2, leaf_keys, strict=True):
+        if a.shape != b.shape:
+            raise ValueError(f"sbx_crossover: parents differ in shape, {a.shape} vs {b.shape}")
+        child = _sbx_leaf(
+            _per_individual(a), _per_individual(b), k, eta, minval, maxval, crossover_prob, prob_var
+        )
+        children.append(child.reshape(a.shape))
     return jax.tree.unflatten(treedef, children)
 
 
@@ -400,11 +506,39 @@ def ga_emitter(
     )
 
 
+def sbx_emitter(
+    batch_size: int,
+    crossover_eta: float,
+    mutation_eta: float,
+    mutation_prob: float,
+    minval: float,
+    maxval: float,
+    crossover_prob: float = 0.9,
+) -> GAEmitter:
+    """NSGA-II's and SPEA2's variation: every child is SBX of two parents, then polynomially mutated.
+
+    Deb et al. 2002: `sbx_crossover` (probability `crossover_prob` per pair, 0.5 per
+    gene) followed by `bernoulli_polynomial_mutation` (each gene with probability
+    `mutation_prob`, usually 1/d); the parents are what `repertoire.sample` draws
+    (a binary tournament for the Pareto populations).
+    """
+
+    def variation(x1: Genotype, x2: Genotype, key: PRNGKey) -> Genotype:
+        cross_key, mutation_key = jax.random.split(key)
+        child = sbx_crossover(x1, x2, cross_key, crossover_eta, minval, maxval, crossover_prob)
+        return bernoulli_polynomial_mutation(
+            child, mutation_key, mutation_eta, mutation_prob, minval, maxval
+        )
+
+    return GAEmitter(batch_size, variation, None, variation_percentage=1.0)
+
+
 __all__: list[str] = [
     "GAConfig",
     "GAEmitter",
     "MutationFn",
     "VariationFn",
+    "bernoulli_polynomial_mutation",
     "ga_emitter",
     "gaussian_mutation",
     "isoline_emitter",
@@ -412,4 +546,6 @@ __all__: list[str] = [
     "polynomial_crossover",
     "polynomial_emitter",
     "polynomial_mutation",
+    "sbx_crossover",
+    "sbx_emitter",
 ]

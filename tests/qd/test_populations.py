@@ -1,0 +1,100 @@
+"""NSGA-II and SPEA2 survival against NumPy references written from the papers; tournaments."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pareto_reference import crowding as _crowding
+from pareto_reference import dominates as _dominates
+from pareto_reference import ranks as _ranks
+
+from qdrl.qd.populations import ParetoPopulation, pareto_population
+
+SIZE, BATCH = 6, 6
+
+
+def _nsga2_survivors(f: np.ndarray) -> list[int]:
+    """Deb et al. 2002: whole fronts, the last cut by crowding (stable: lower index first);
+    copies of an earlier member's objectives after the distinct members of their front."""
+    mask = np.ones(len(f), bool)
+    ranks = _ranks(f, mask)
+    crowd = _crowding(f, mask, ranks)
+    clone = [any(np.array_equal(f[i], f[j]) for j in range(i)) for i in range(len(f))]
+    order = sorted(range(len(f)), key=lambda i: (ranks[i], clone[i], -crowd[i], i))
+    return sorted(order[:SIZE])
+
+
+def _spea2_survivors(f: np.ndarray) -> list[int]:
+    """Zitzler et al. 2001: F = R + D, non-dominated first, truncation by sorted distances."""
+    n = len(f)
+    strength = [sum(_dominates(f[i], f[j]) for j in range(n)) for i in range(n)]
+    raw = np.array([sum(strength[j] for j in range(n) if _dominates(f[j], f[i])) for i in range(n)])
+    dist = np.sqrt(((f[:, None] - f[None]) ** 2).sum(-1))
+    np.fill_diagonal(dist, np.inf)
+    k = int(math.sqrt(n))
+    fitness = raw + 1.0 / (np.sort(dist, axis=1)[:, k - 1] + 2.0)
+    alive = [i for i in range(n) if raw[i] == 0]
+    if len(alive) <= SIZE:
+        return sorted(sorted(range(n), key=lambda i: (fitness[i], i))[:SIZE])
+    while len(alive) > SIZE:
+        rows = {i: sorted(dist[i, j] for j in alive if j != i) for i in alive}
+        alive.remove(min(alive, key=lambda i: (rows[i], i)))
+    return sorted(alive)
+
+
+@pytest.fixture(scope="module")
+def add() -> object:
+    return jax.jit(lambda pop, g, d, f: pop.add(g, d, f))
+
+
+def _merge(pop: ParetoPopulation, batch: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.asarray(pop.fitnesses), batch])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    rounds=st.lists(
+        st.lists(st.integers(0, 6), min_size=2 * BATCH, max_size=2 * BATCH), min_size=2, max_size=2
+    ),
+    survival=st.sampled_from(["nsga2", "spea2"]),
+)
+def test_survivors_match_the_papers_rules(rounds: list[list[int]], survival: str, add: object) -> None:
+    pop = pareto_population(jnp.zeros(2), SIZE, 2, 1, survival)  # type: ignore[arg-type]
+    reference = _nsga2_survivors if survival == "nsga2" else _spea2_survivors
+    for r, values in enumerate(rounds):
+        batch = np.asarray(values, np.float32).reshape(BATCH, 2)
+        merged = _merge(pop, batch)
+        if r == 0:  # the first round fills the empty population: only the batch competes
+            expected = sorted(merged[SIZE:][i].tolist() for i in reference(batch))
+        else:
+            expected = sorted(merged[i].tolist() for i in reference(merged))
+        pop, result = add(pop, batch, np.zeros((BATCH, 1)), batch)  # type: ignore[operator]
+        assert sorted(np.asarray(pop.fitnesses).tolist()) == expected
+        assert int(np.sum(result.added)) == sum(int(c >= 0) for c in np.asarray(result.cell))
+        np.testing.assert_array_equal(np.asarray(pop.genotypes), np.asarray(pop.fitnesses))
+
+
+def test_tournament_prefers_the_lower_front_then_the_larger_score(add: object) -> None:
+    f = np.array([[3, 3], [1, 1], [0, 0], [-1, -1], [np.nan, 0], [np.nan, 0]], np.float32)
+    pop = pareto_population(jnp.zeros(2), SIZE, 2, 1, "nsga2")
+    pop, _ = add(pop, f, np.zeros((BATCH, 1)), f)  # type: ignore[operator]
+    assert int(np.sum(np.asarray(pop.members))) == 4  # NaN offspring never survive
+    samples = np.asarray(jax.jit(pop.sample, static_argnums=1)(jax.random.PRNGKey(1), 40_000))
+    # a member wins when both drawn are it or it meets a worse one: P(i-th best) = (2(4 - i) - 1) / 16
+    for i in range(4):
+        share = np.mean(np.all(samples == f[i], axis=1))
+        assert share == pytest.approx((2 * (4 - i) - 1) / 16, abs=0.01)
+
+
+def test_invalid_offspring_never_survive(add: object) -> None:
+    pop = pareto_population(jnp.zeros(2), SIZE, 2, 1, "spea2")
+    f = np.array([[np.nan, 5], [1, 1], [np.inf, 0], [0, 2], [2, 0], [-np.inf, 9]], np.float32)
+    pop, result = add(pop, np.zeros((BATCH, 2)), np.zeros((BATCH, 1)), f)  # type: ignore[operator]
+    assert np.asarray(result.added).tolist() == [False, True, False, True, True, False]
+    assert int(np.sum(np.asarray(pop.members))) == 3
