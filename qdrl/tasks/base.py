@@ -37,6 +37,8 @@ class Task:
     `gradient_scoring_fn`, for differentiable tasks, is `scoring_fn` whose
     evaluations also carry the fitness gradient and descriptor Jacobian
     (`qdrl.qd.dqd`); runs that do not ask for it differentiate nothing.
+    `descriptor_names` label the descriptor dimensions on plots (e.g. "back foot
+    contact"); by default "descriptor 0", "descriptor 1", ...
     """
 
     name: str
@@ -54,12 +56,21 @@ class Task:
     policy_scoring: Callable[..., ScoringFn] | None = None
     episode_descriptor: str | None = None
     gradient_scoring_fn: ScoringFn | None = None
+    descriptor_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
             raise ValueError(
                 f"{self.name}: descriptor_low has {len(self.descriptor_low)} entries, "
                 f"descriptor_high {len(self.descriptor_high)}"
+            )
+        if not self.descriptor_names:
+            default = tuple(f"descriptor {i}" for i in range(len(self.descriptor_low)))
+            object.__setattr__(self, "descriptor_names", default)
+        if len(self.descriptor_names) != len(self.descriptor_low):
+            raise ValueError(
+                f"{self.name}: expected {len(self.descriptor_low)} descriptor names, got "
+                f"{list(self.descriptor_names)}"
             )
         if not self.genotype_low < self.genotype_high:
             raise ValueError(

@@ -191,6 +191,7 @@ def policy_task(
     max_fitness: float | None = None,
     clip_descriptors: bool = True,
     eval_batch: int | None = DEFAULT_EVAL_BATCH,
+    descriptor_names: Sequence[str] = (),
 ) -> Task:
     """A `Task` whose genotypes are MLP policies acting in `env` for one episode each.
 
@@ -242,4 +243,5 @@ def policy_task(
         env=env,
         policy_scoring=scoring_for,
         episode_descriptor=descriptor,
+        descriptor_names=tuple(descriptor_names),
     )
