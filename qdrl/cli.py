@@ -180,6 +180,23 @@ def _cmd_reevaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_report(args: argparse.Namespace) -> int:
+    from qdrl.runs import RunError
+
+    if not 0.0 < args.confidence < 1.0:
+        print(f"qdrl: error: --confidence: expected a number in (0, 1), got {args.confidence}", file=sys.stderr)
+        return 2
+    try:
+        from qdrl.report import report
+
+        result = report(args.dirs, args.out, confidence=args.confidence)
+    except RunError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `qdrl` console script."""
     from qdrl import quiet
@@ -238,6 +255,17 @@ def main(argv: list[str] | None = None) -> int:
         "--out", default=None, help="output file, .html or .png (default: DIR/plots/replay_cell<N>.html|png)"
     )
     p_render.set_defaults(fn=_cmd_render)
+
+    p_report = sub.add_parser(
+        "report",
+        help="compare runs and sweeps: mean and bootstrap band per metric, final-value table, heatmaps",
+    )
+    p_report.add_argument("dirs", nargs="+", metavar="DIR", help="run directories, sweeps or folders of runs")
+    p_report.add_argument("--out", default="report", help="output directory (default: report)")
+    p_report.add_argument(
+        "--confidence", type=float, default=0.95, help="confidence level of the bands (default: 0.95)"
+    )
+    p_report.set_defaults(fn=_cmd_report)
 
     p_reeval = sub.add_parser(
         "reevaluate",

@@ -599,6 +599,7 @@ def run(
     if "evaluations" in final:
         summary["evaluations"] = int(final["evaluations"])
     summary.update({k: v for k, v in final.items() if k not in summary and k != "log_point"})
+    summary.update(_descriptor_space(run_))
     summary.update(run_.finish(state, rows, out_dir))
     if log.plots and rows:
         from qdrl import plotting
@@ -609,6 +610,24 @@ def run(
     summary = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default) + "\n")
     return summary
+
+
+def _descriptor_space(run_: Run) -> dict[str, Any]:
+    """The bounds and names of the run's descriptor space (a QD run's task, or an RL run's
+    passive archive), for reports that draw repertoires without rebuilding the run."""
+    task = getattr(run_, "qd_task", None)
+    if task is not None:
+        low, high, names = task.descriptor_low, task.descriptor_high, task.descriptor_names
+    elif hasattr(run_, "archive_cfg") and hasattr(run_, "archive_labels"):
+        cfg = run_.archive_cfg
+        low, high, names = cfg.low, cfg.high, run_.archive_labels
+    else:
+        return {}
+    return {
+        "descriptor_low": [float(v) for v in low],
+        "descriptor_high": [float(v) for v in high],
+        "descriptor_names": list(names),
+    }
 
 
 def _newest_log_point(ckpt_dir: Path) -> tuple[Path | None, int]:

@@ -34,6 +34,7 @@ __all__ = [
     "plot_comparison",
     "plot_curves",
     "plot_repertoire",
+    "plot_repertoires",
     "plot_skills",
 ]
 
@@ -258,7 +259,7 @@ def _seed_curves(runs: Sequence[Rows], x_key: str, y_key: str) -> tuple[np.ndarr
 def plot_comparison(
     runs: Mapping[str, Rows | Sequence[Rows]],
     y_key: str,
-    x_key: str,
+    x_key: str | Sequence[str],
     path: str | Path,
     title: str = "",
     confidence: float = 0.95,
@@ -273,8 +274,8 @@ def plot_comparison(
       runs: name (e.g. the spec or algorithm) -> that run's metric rows, or a list
         of such row lists, one per seed.
       y_key: metric to compare; must appear in at least one run.
-      x_key: x column, e.g. `evaluations`, `env_steps` or `wall_s`; must appear in at
-        least one run.
+      x_key: x column, e.g. `evaluations`, `env_steps` or `wall_s`, or several (one
+        panel each, side by side); each must appear in at least one run.
       path: PNG to write; its parent directory is created if needed.
       title: figure title; defaults to `y_key`.
       confidence: the band's confidence level.
@@ -285,24 +286,38 @@ def plot_comparison(
     Raises:
       ValueError: if `runs` is empty or a key appears in no run.
     """
-    from qdrl.stats import bootstrap_ci
-
     if not runs:
         raise ValueError("runs is empty; nothing to compare")
     groups: dict[str, list[Rows]] = {
-        name: [value] if _is_rows(value) else list(value)  # type: ignore[list-item]
+        name: [value] if _is_rows(value) else list(value)  # type: ignore[list-item, arg-type]
         for name, value in runs.items()
     }
-    for role, key in (("y_key", y_key), ("x_key", x_key)):
+    x_keys = [x_key] if isinstance(x_key, str) else list(x_key)
+    for role, key in (("y_key", y_key), *(("x_key", x) for x in x_keys)):
         if not any(_has_key(rows, key) for seeds in groups.values() for rows in seeds):
             raise ValueError(f"{role} {key!r} appears in no row of runs {sorted(runs)}")
-    fig = _new_figure(1)
-    ax = fig.subplots()
+    fig = _new_figure(len(x_keys))
+    axes = fig.subplots(1, len(x_keys), squeeze=False)[0]
+    for ax, x in zip(axes, x_keys, strict=True):
+        _draw_comparison(ax, groups, x, y_key, confidence)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title or y_key)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    return out
+
+
+def _draw_comparison(
+    ax: Axes, groups: Mapping[str, Sequence[Rows]], x_key: str, y_key: str, confidence: float
+) -> None:
+    """One panel of `plot_comparison`: a mean line (and a band for several seeds) per name."""
+    from qdrl.stats import bootstrap_ci
+
     for index, (name, seeds) in enumerate(groups.items()):
         colour = f"C{index % 10}"
         xs, ys = _seed_curves(seeds, x_key, y_key)
-        counts = np.sum(~np.isnan(ys), axis=0)
-        shown = counts > 0
+        shown = np.sum(~np.isnan(ys), axis=0) > 0
         if not np.any(shown):
             # A run without data still gets its legend entry, so its absence is visible.
             ax.plot([], [], color=colour, label=f"{name} (no data)")
@@ -319,12 +334,6 @@ def plot_comparison(
     ax.set_ylabel(y_key)
     ax.grid(True, alpha=0.3)
     _tidy_x(ax)
-    ax.legend()
-    fig.suptitle(title or y_key)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
-    return out
 
 
 # --- repertoires -------------------------------------------------------------------
@@ -433,10 +442,71 @@ def plot_repertoire(
     Returns:
       `path`.
     """
-    from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
+
+    norm, colours = _colour_scale([repertoire], vmin, vmax, cmap)
+    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    _draw_repertoire(ax, repertoire, low, high, dims, norm, colours, labels)
+    fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=ax, label="fitness")
+    return _save(fig, path, title)
+
+
+def plot_repertoires(
+    repertoires: Mapping[str, Any],
+    path: str | Path,
+    low: float | Sequence[float],
+    high: float | Sequence[float],
+    title: str = "",
+    dims: tuple[int, int] = (0, 1),
+    cmap: str = "viridis",
+    labels: Sequence[str] | None = None,
+) -> Path:
+    """Writes one PNG with several repertoires of one task side by side, on one colour scale.
+
+    Each panel is drawn as `plot_repertoire` draws one; `repertoires` maps a panel's
+    title (e.g. the spec's name) to its repertoire. Returns `path`.
+    """
+    from matplotlib.cm import ScalarMappable
+
+    if not repertoires:
+        raise ValueError("repertoires is empty; nothing to draw")
+    norm, colours = _colour_scale(list(repertoires.values()), None, None, cmap)
+    fig = Figure(figsize=(4.6 * len(repertoires) + 1.2, 4.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(repertoires), squeeze=False)[0]
+    for ax, (name, repertoire) in zip(axes, repertoires.items(), strict=True):
+        _draw_repertoire(ax, repertoire, low, high, dims, norm, colours, labels)
+        ax.set_title(name, fontsize=10)
+    fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=list(axes), label="fitness")
+    return _save(fig, path, title)
+
+
+def _colour_scale(repertoires: Sequence[Any], vmin: float | None, vmax: float | None, cmap: str) -> tuple[Any, Any]:
+    """A colour normalisation over the filled cells of every repertoire, and the colormap
+    with empty cells (NaN) white."""
+    from matplotlib import colormaps
     from matplotlib.colors import Normalize
 
+    values = np.concatenate([np.asarray(r.fitnesses, dtype=np.float64).ravel() for r in repertoires])
+    shown = values[np.isfinite(values)]
+    lo_c = vmin if vmin is not None else (float(shown.min()) if shown.size else 0.0)
+    hi_c = vmax if vmax is not None else (float(shown.max()) if shown.size else 1.0)
+    return Normalize(lo_c, hi_c if hi_c > lo_c else lo_c + 1.0), colormaps[cmap].with_extremes(bad="white")
+
+
+def _draw_repertoire(
+    ax: Axes,
+    repertoire: Any,
+    low: float | Sequence[float],
+    high: float | Sequence[float],
+    dims: tuple[int, int],
+    norm: Any,
+    colours: Any,
+    labels: Sequence[str] | None,
+) -> None:
+    """Draws one repertoire's heatmap on `ax` (see `plot_repertoire`)."""
     fitnesses = np.asarray(repertoire.fitnesses, dtype=np.float64)
     descriptors = np.asarray(repertoire.descriptors, dtype=np.float64)
     num_dims = descriptors.shape[1]
@@ -466,14 +536,6 @@ def plot_repertoire(
 
     filled = fitnesses > -np.inf
     shown = fitnesses[filled & np.isfinite(fitnesses)]
-    lo_c = vmin if vmin is not None else (float(shown.min()) if shown.size else 0.0)
-    hi_c = vmax if vmax is not None else (float(shown.max()) if shown.size else 1.0)
-    norm = Normalize(lo_c, hi_c if hi_c > lo_c else lo_c + 1.0)
-    colours = colormaps[cmap].with_extremes(bad="white")
-
-    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
     ax.set_facecolor("white")
     box = (lo[dx], hi[dx], lo[dy], hi[dy])
 
@@ -534,8 +596,6 @@ def plot_repertoire(
         ax.set_yticks([])
     else:
         ax.set_ylabel(names[dy])
-    fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=ax, label="fitness")
-    return _save(fig, path, title)
 
 
 def _names(labels: Sequence[str] | None, num_dims: int) -> list[str]:
