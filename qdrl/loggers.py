@@ -87,8 +87,7 @@ class WandbLogger:
                 "got none; set log.wandb = false to run without it"
             ) from None
         id_file = out_dir / "wandb_id.txt"
-        run_id = id_file.read_text().strip() if id_file.is_file() else wandb.util.generate_id()
-        id_file.write_text(run_id + "\n")
+        run_id = id_file.read_text().strip() if id_file.is_file() else None
         self.run = wandb.init(
             project=project,
             entity=entity or None,
@@ -100,6 +99,7 @@ class WandbLogger:
             id=run_id,
             resume="allow",
         )
+        id_file.write_text(f"{self.run.id}\n")  # a resumed run continues this W&B run
 
     def log(self, row: Mapping[str, float], step: int) -> None:
         self.run.log(scalars(row), step=step)

@@ -122,11 +122,13 @@ def x_keys_for(runs: Sequence[LoadedRun]) -> list[str]:
 
 
 def _final(runs: Sequence[LoadedRun], key: str) -> np.ndarray:
+    """Each run's last finite value of `key` (NaN where it has none)."""
     values = []
     for run in runs:
         column = run.metrics.get(key)
-        finite = column[np.isfinite(column)] if column is not None else []
-        values.append(float(finite.iloc[-1]) if len(finite) else math.nan)
+        finite = column.to_numpy(dtype=float) if column is not None else np.zeros(0)
+        finite = finite[np.isfinite(finite)]
+        values.append(float(finite[-1]) if finite.size else math.nan)
     return np.asarray(values, dtype=np.float64)
 
 
@@ -227,7 +229,7 @@ def report(
     ]
     for group in groups:
         task_dir = out / _slug(group.task)
-        figures = []
+        figures: list[dict[str, Any]] = []
         for key in metrics_of(group):
             members = {
                 label: [_rows(r) for r in runs if _numeric(r, key)]
@@ -236,10 +238,11 @@ def report(
             members = {label: rows for label, rows in members.items() if rows}
             with_key = [r for runs in group.runs.values() for r in runs if _numeric(r, key)]
             x_keys = x_keys_for(with_key)
-            figures.append(plotting.plot_comparison(
+            path = plotting.plot_comparison(
                 members, key, x_keys, task_dir / f"{_slug(key)}.png",
                 title=f"{group.task}: {key}", confidence=confidence,
-            ))
+            )
+            figures.append({"metric": key, "path": str(path), "x": x_keys})
             for label, values in final_values(group, key, resamples).items():
                 csv_rows.append({"task": group.task, "spec": label, "metric": key, **values})
         repertoires, low, high, names = {}, None, None, None
@@ -257,7 +260,7 @@ def report(
             )
         result["groups"][group.task] = {
             "labels": {label: [r.seed for r in runs] for label, runs in group.runs.items()},
-            "figures": [str(f) for f in figures],
+            "figures": figures,
             "repertoires": str(rep_path) if rep_path else None,
         }
         md += _task_section(group, [r for r in csv_rows if r["task"] == group.task], figures, rep_path, out)
@@ -276,7 +279,7 @@ def report(
 
 
 def _task_section(
-    group: Group, rows: list[dict[str, Any]], figures: list[Path], rep_path: Path | None, out: Path
+    group: Group, rows: list[dict[str, Any]], figures: list[dict[str, Any]], rep_path: Path | None, out: Path
 ) -> list[str]:
     """report.md's section of one task: the headline table, then the figures."""
     lines = [f"## {group.task}", ""]
@@ -294,7 +297,7 @@ def _task_section(
         lines.append(f"| {label} | {seeds[label]} | " + " | ".join(cells) + " |")
     lines.append("")
     for figure in figures:
-        lines.append(f"![{figure.stem}]({figure.relative_to(out).as_posix()})")
+        lines.append(f"![{figure['metric']}]({Path(figure['path']).relative_to(out).as_posix()})")
     if rep_path is not None:
         lines.append(f"![repertoires]({rep_path.relative_to(out).as_posix()})")
     lines.append("")

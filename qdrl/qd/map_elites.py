@@ -13,6 +13,7 @@ done outside JAX (a simulator, a NumPy objective), call `ask` and `tell` yoursel
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -49,6 +50,23 @@ def _check_evaluation(n: int, fitnesses: Array, descriptors: Array, descriptor_s
         )
 
 
+def check_evaluation_type(value: Any, where: str) -> Evaluation:
+    """`value` if it is an `Evaluation`; a TypeError saying what a scoring function must return
+    otherwise (raised where the scoring function is called, not deep in the loop)."""
+    if isinstance(value, Evaluation):
+        return value
+    got = f"a tuple of {len(value)}" if isinstance(value, tuple) else type(value).__name__
+    hint = (
+        " (a QDax scoring function returns (fitnesses, descriptors, extras): return "
+        "Evaluation(fitnesses, descriptors, extras, env_steps) instead)"
+        if isinstance(value, tuple) else ""
+    )
+    raise TypeError(
+        f"{where}: expected qdrl.qd.base.Evaluation(fitnesses (n,), descriptors (n, D), extras "
+        f"dict, env_steps int32), got {got}{hint}"
+    )
+
+
 def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
     return Evaluation(
         fitnesses=jnp.asarray(fitnesses, jnp.float32),
@@ -74,6 +92,11 @@ class MapElites:
         `scoring_fn` may be None when every evaluation happens outside JAX
         (`init_values`, `ask`, `tell_values`).
         """
+        if scoring_fn is not None and not callable(scoring_fn):
+            raise TypeError(
+                f"scoring_fn: expected a function (genotypes, key) -> Evaluation, or None, got "
+                f"{type(scoring_fn).__name__}"
+            )
         self.scoring_fn = scoring_fn
         self.emitter = emitter
         self.empty_repertoire = repertoire
@@ -90,6 +113,7 @@ class MapElites:
         self, genotypes: Genotype, evaluation: Evaluation, key: PRNGKey
     ) -> QDState:
         """Fill the repertoire with an evaluated initial population and start the emitter."""
+        evaluation = check_evaluation_type(evaluation, "init_from_evaluation: evaluation")
         n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
         emitter_key, key = jax.random.split(key)
@@ -118,7 +142,7 @@ class MapElites:
                 "this MapElites has no scoring function: evaluate outside and use "
                 "init_values / ask / tell_values"
             )
-        return self.scoring_fn(genotypes, key)
+        return check_evaluation_type(self.scoring_fn(genotypes, key), "scoring_fn returned")
 
     def ask(self, state: QDState) -> tuple[Genotype, QDState]:
         """Offspring to evaluate, and the state with its key moved on."""
@@ -133,6 +157,7 @@ class MapElites:
         evaluation: Evaluation,
     ) -> tuple[QDState, dict[str, Array]]:
         """Offer evaluated offspring to the repertoire and update the emitter."""
+        evaluation = check_evaluation_type(evaluation, "tell: evaluation")
         n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size)
         key, update_key = jax.random.split(state.key)
@@ -170,8 +195,20 @@ class MapElites:
         return self.tell(state._replace(key=key), offspring, evaluation)
 
     def run(self, state: QDState, num_steps: int) -> tuple[QDState, dict[str, Array]]:
-        """`num_steps` iterations in a `lax.scan`; metrics are stacked per iteration."""
-        return jax.lax.scan(lambda s, _: self.step(s), state, None, length=num_steps)
+        """`num_steps` iterations in a `lax.scan`; metrics are stacked per iteration.
+
+        `num_steps` sets the scan's length, so it must be a Python int when jitted:
+        `jax.jit(me.run, static_argnums=1)`.
+        """
+        try:
+            length = operator.index(num_steps)
+        except Exception:
+            raise TypeError(
+                f"num_steps: expected a Python int (the scan's length), got {type(num_steps).__name__}"
+                " (a traced value?): jit me.run with the number of steps static, "
+                "jax.jit(me.run, static_argnums=1)"
+            ) from None
+        return jax.lax.scan(lambda s, _: self.step(s), state, None, length=length)
 
     def _metrics(self, state: QDState, added: AddResult) -> dict[str, Array]:
         metrics = dict(self.metrics_fn(state.repertoire, self.qd_offset))
