@@ -720,8 +720,10 @@ def plot_skills(
         ax.plot(xs[-1], ys[-1], "x", color=colour, markersize=6)
     ax.set_xlim(low[dx], high[dx])
     ax.set_ylim(low[dy], high[dy])
-    ax.set_xlabel(names[dx])
-    ax.set_ylabel(names[dy])
+    # The paths are positions over time: "final x" on the archive is "x" along a path.
+    path_names = [n.removeprefix("final ") for n in names] if trajectories_are_positions else names
+    ax.set_xlabel(path_names[dx])
+    ax.set_ylabel(path_names[dy])
     if trajectories_are_positions:
         for panel in axes:
             draw_walls(panel, walls, (dx, dy))

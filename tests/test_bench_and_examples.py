@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -64,3 +65,25 @@ def test_bench_policy_map_elites_quick(capsys: pytest.CaptureFixture[str]) -> No
     (result,) = json.loads(capsys.readouterr().out)["results"]
     assert result["task"] == "point_maze" and result["evaluations"] == 16 * 3
     assert result["env_steps_per_s"] > 0 and 0 < result["coverage"] <= 1
+
+
+@pytest.mark.parametrize("script", ["map_elites_function.py", "diayn_skills.py", "pga_me_brax.py"])
+def test_example_runs_at_its_small_size(script: str, tmp_path: Path) -> None:
+    """Each example at the size its QDRL_EXAMPLE_SIZE=small gives (the brax one compiles brax
+    physics three times: start, chunk, replay)."""
+    env = {**os.environ, "QDRL_EXAMPLE_SIZE": "small"}
+    res = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / script), str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=900, env=env, cwd=tmp_path,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = res.stdout.strip().splitlines()
+    if script == "map_elites_function.py":
+        assert float(lines[-1].split("coverage")[1]) > 0.5
+    elif script == "diayn_skills.py":
+        assert "discriminator accuracy" in lines[0] and (tmp_path / "out" / "plots" / "skills.png").is_file()
+        assert int(lines[1].split("reached ")[1].split()[0]) >= 1
+    else:
+        assert lines[0].startswith("QD score") and "24 evaluations, 240 env steps" in lines[0]
+        assert "back foot contact" in lines[1] and lines[2].endswith(".html")
+        assert Path(lines[2].split("replay: ")[1]).stat().st_size > 5_000  # 10 frames of brax's viewer
