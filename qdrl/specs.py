@@ -63,13 +63,25 @@ def resolve(spec: str | Path) -> Path:
     raise ConfigError(f"spec file {text!r} not found")
 
 
+_NOT_AN_END = ("al.", "e.g.", "i.e.", "vs.", "approx.")
+
+
 def describe(path: str | Path) -> str:
-    """A spec's one-line description: its first comment line (empty if it has none)."""
+    """A spec's description: the first sentence of the comment block it opens with (its first
+    comment line when no sentence ends sooner; empty without a comment)."""
+    words: list[str] = []
     with Path(path).open(encoding="utf-8") as f:
         for line in f:
             stripped = line.strip()
-            if stripped.startswith("#"):
-                return stripped.lstrip("#").strip()
-            if stripped:
-                return ""
-    return ""
+            text = stripped.lstrip("#").strip()
+            if not stripped.startswith("#") or not text:
+                break
+            for word in text.split():
+                words.append(word)
+                if word.endswith(".") and not word.endswith(_NOT_AN_END):
+                    return " ".join(words)
+            if not words:
+                continue
+            if text.endswith(":"):
+                return " ".join(words)
+    return " ".join(words)
