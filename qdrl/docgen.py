@@ -37,7 +37,7 @@ def _class_comments(cls: type) -> dict[str, str]:
         line = lines[stmt.end_lineno - 1] if stmt.end_lineno else ""
         comment = line.split("  # ", 1)[1].strip() if "  # " in line else ""
         if not comment:  # the comment block right above the field
-            above = []
+            above: list[str] = []
             i = stmt.lineno - 2
             while i >= 0 and lines[i].strip().startswith("#"):
                 above.insert(0, lines[i].strip().lstrip("#").strip())
