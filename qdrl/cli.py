@@ -51,6 +51,10 @@ def _interrupted() -> int:
     return 130
 
 
+def _writing(out_dir: Path) -> None:
+    print(f"qdrl: writing to {out_dir}", file=sys.stderr)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from qdrl import checkpoint, specs
     from qdrl.config import ConfigError
@@ -75,10 +79,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
             if args.check:
                 resolved = check_spec_file(args.spec, args.set)
             elif seeds is not None:
-                summary = run_seeds(args.spec, seeds, args.set, out_dir, args.resume, args.overwrite)
+                summary = run_seeds(
+                    args.spec, seeds, args.set, out_dir, args.resume, args.overwrite, on_start=_writing
+                )
             else:
-                print(f"qdrl: writing to {out_dir}", file=sys.stderr)
-                summary = run_spec(args.spec, args.set, out_dir, args.resume, args.overwrite)
+                summary = run_spec(args.spec, args.set, out_dir, args.resume, args.overwrite, on_start=_writing)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2

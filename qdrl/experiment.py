@@ -309,12 +309,13 @@ def run_spec(
     out_dir: str | Path | None = None,
     resume: bool = False,
     overwrite: bool = False,
+    on_start: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """Run the spec at `spec_path` (a path, or a packaged spec's name; with `--set`
-    overrides) and return its summary."""
+    overrides) and return its summary; `on_start` as in `run`."""
     spec = load_spec(spec_path, overrides)
     out = Path(out_dir) if out_dir else default_out_dir(spec_path)
-    return run(spec, out, resume, overwrite)
+    return run(spec, out, resume, overwrite, on_start=on_start)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -368,6 +369,7 @@ def run_seeds(
     out_dir: str | Path | None = None,
     resume: bool = False,
     overwrite: bool = False,
+    on_start: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """Run a spec once per seed, one after the other, each into `out_dir/seed_<n>/`.
 
@@ -379,7 +381,8 @@ def run_seeds(
     (`benchmarks/seeds_sequential_vs_vmap.py`). With `resume`, finished seeds are
     skipped, interrupted ones resume from their checkpoints and the others start.
 
-    Returns {"out": the sweep directory, "runs": {seed: summary}}.
+    Returns {"out": the sweep directory, "runs": {seed: summary}}; `on_start` is called
+    as each seed's run starts (`run`).
     Raises ConfigError (a bad spec, or a seed directory that already holds a run
     without `resume` or `overwrite`) before anything compiles, and RunInterrupted
     as `run` does.
@@ -404,11 +407,10 @@ def run_seeds(
             print(f"qdrl: seed {seed} ({i + 1} of {len(seeds)}): finished in {where}, skipped", file=sys.stderr)
             summaries[seed] = finished
             continue
-        print(f"qdrl: seed {seed} ({i + 1} of {len(seeds)}): writing to {where}", file=sys.stderr)
         started = bool(checkpoint.checkpoints(where / "checkpoints"))
         summaries[seed] = run(
             spec, where, resume=resume and started, overwrite=overwrite,
-            label=f"seed {seed}, {i + 1} of {len(seeds)}",
+            label=f"seed {seed}, {i + 1} of {len(seeds)}", on_start=on_start,
         )
     return {"out": str(out), "runs": summaries}
 
@@ -450,11 +452,13 @@ def _make_loggers(log: LogConfig, out_dir: Path, exp: ExperimentConfig, config_t
 
 def run(
     spec: Mapping[str, Any], out_dir: Path, resume: bool = False, overwrite: bool = False,
-    label: str = "",
+    label: str = "", on_start: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """Run a parsed spec into `out_dir`; see the module docstring for what it writes.
 
-    `label` is added to the progress line (a sweep names the seed there).
+    `label` is added to the progress line (a sweep names the seed there);
+    `on_start(out_dir)` is called once the spec and any resume are checked, before
+    compiling (`qdrl run` says there where it writes).
 
     Raises:
       ConfigError: a bad spec, or a --resume that cannot be honoured; before any compilation.
@@ -481,6 +485,8 @@ def run(
     out_dir.mkdir(parents=True, exist_ok=True)
     if not resume:
         (out_dir / "config.toml").write_text(config_text)
+    if on_start is not None:
+        on_start(out_dir)
 
     what = f"{exp.algorithm} on {run_.task}" + (f" ({label})" if label else "")
     progress = RunProgress(log.progress, what, run_.progress_unit, run_.progress_total)
