@@ -312,7 +312,8 @@ def test_an_unexpected_error_prints_one_line_and_logs_the_traceback(
     assert main(["run", str(spec), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     log = out / "error.log"
-    assert err == f"qdrl: error: RuntimeError: XLA ran out of memory (full traceback in {log})\n"
+    # The run had started (it says where it writes); the error is one line after it.
+    assert err == f"qdrl: writing to {out}\nqdrl: error: RuntimeError: XLA ran out of memory (full traceback in {log})\n"
     text = log.read_text()
     assert "Traceback (most recent call last)" in text and "broken_compile" in text
     assert "second line of detail" in text
