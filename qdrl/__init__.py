@@ -7,10 +7,10 @@ from typing import TYPE_CHECKING, Any
 from qdrl._quiet import MujocoWarning, quiet
 
 if TYPE_CHECKING:
-    from qdrl.runs import load_run
+    from qdrl.runs import load_metrics, load_repertoires, load_run
 
 __version__ = "0.1.0"
-__all__ = ["MujocoWarning", "__version__", "load_run", "quiet"]
+__all__ = ["MujocoWarning", "__version__", "load_metrics", "load_repertoires", "load_run", "quiet"]
 
 # Cheap (imports nothing) and narrow: see qdrl/_quiet.py for the messages it silences.
 quiet()
@@ -18,8 +18,8 @@ quiet()
 
 def __getattr__(name: str) -> Any:
     # `import qdrl` stays cheap: jax and pandas load on first use of `qdrl.load_run`.
-    if name == "load_run":
-        from qdrl.runs import load_run
+    if name in ("load_run", "load_metrics", "load_repertoires"):
+        from qdrl import runs
 
-        return load_run
+        return getattr(runs, name)
     raise AttributeError(f"module 'qdrl' has no attribute {name!r}")

@@ -10,12 +10,6 @@ import sys
 from pathlib import Path
 
 
-def _spec_dirs() -> list[Path]:
-    here = Path.cwd() / "agents"
-    repo = Path(__file__).resolve().parents[1] / "agents"
-    return [d for d in dict.fromkeys([here, repo]) if d.is_dir()]
-
-
 def _report_crash(exc: BaseException, run_dir: Path | None, argv: list[str]) -> int:
     """Writes the traceback to `run_dir`/error.log (else a temporary file) and prints one line."""
     import tempfile
@@ -57,27 +51,39 @@ def _interrupted() -> int:
     return 130
 
 
+def _writing(out_dir: Path) -> None:
+    print(f"qdrl: writing to {out_dir}", file=sys.stderr)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
-    from qdrl import checkpoint
+    from qdrl import checkpoint, specs
     from qdrl.config import ConfigError
     from qdrl.experiment import (
         RunInterrupted,
         check_spec_file,
         default_out_dir,
+        parse_seeds,
         resume_command,
+        run_seeds,
         run_spec,
     )
 
     out_dir = Path(args.out) if args.out else default_out_dir(args.spec)
-    resume = resume_command(args.spec, args.set, out_dir)
+    resume = resume_command(args.spec, args.set, out_dir, args.seeds)
     try:
+        specs.resolve(args.spec)
+        seeds = parse_seeds(args.seeds) if args.seeds is not None else None
         # Libraries print notices on stdout (mujoco-mjx: "Failed to import warp");
         # stdout carries only the JSON summary (with --check: the resolved spec).
         with contextlib.redirect_stdout(sys.stderr):
             if args.check:
                 resolved = check_spec_file(args.spec, args.set)
+            elif seeds is not None:
+                summary = run_seeds(
+                    args.spec, seeds, args.set, out_dir, args.resume, args.overwrite, on_start=_writing
+                )
             else:
-                summary = run_spec(args.spec, args.set, out_dir, args.resume, args.overwrite)
+                summary = run_spec(args.spec, args.set, out_dir, args.resume, args.overwrite, on_start=_writing)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
@@ -87,7 +93,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             print(f"qdrl: resume with: {resume}", file=sys.stderr)
         return _interrupted()
     except KeyboardInterrupt:
-        newest = checkpoint.latest(out_dir / "checkpoints")
+        newest = checkpoint.latest(out_dir / "checkpoints") if args.seeds is None else None
         if newest is None:
             print("qdrl: aborted; no checkpoint was saved", file=sys.stderr)
         else:
@@ -103,15 +109,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_list(args: argparse.Namespace) -> int:
     with contextlib.redirect_stdout(sys.stderr):  # mujoco-mjx prints import notices
         import brax.envs  # noqa: F401
+    from qdrl import specs
     from qdrl.envs import PURE_JAX_ENVS
     from qdrl.envs.brax import BACKENDS, brax_env_names
     from qdrl.experiment import RUNS, _load_builtin_runs
 
     _load_builtin_runs()
-    print("specs:")
-    for d in _spec_dirs():
-        for p in sorted(d.glob("*.toml")):
-            print(f"  {os.path.relpath(p)}")
+    directory = specs.spec_dir()
+    names = specs.spec_names()
+    where = f" ({directory}; run one by name: qdrl run NAME)" if directory is not None else ""
+    print(f"specs{where}:")
+    width = max((len(n) for n in names), default=0)
+    for name in names:
+        assert directory is not None
+        print(f"  {name:<{width}}  {_shorten(specs.describe(directory / f'{name}.toml'))}".rstrip())
     print("algorithms:")
     for name in sorted(RUNS):
         print(f"  {name}")
@@ -127,6 +138,13 @@ def _cmd_list(args: argparse.Namespace) -> int:
     print(f"  pure-JAX environments: {', '.join(PURE_JAX_ENVS)}")
     print(f"  brax environments ({', '.join(BACKENDS)} backends): {', '.join(brax_env_names())}")
     return 0
+
+
+def _shorten(text: str, width: int = 90) -> str:
+    """`text` cut at a word boundary to at most `width` characters ("..." marks a cut)."""
+    if len(text) <= width:
+        return text
+    return text[: width - 3].rsplit(" ", 1)[0].rstrip(",;:(") + "..."
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -172,6 +190,23 @@ def _cmd_reevaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_report(args: argparse.Namespace) -> int:
+    from qdrl.runs import RunError
+
+    if not 0.0 < args.confidence < 1.0:
+        print(f"qdrl: error: --confidence: expected a number in (0, 1), got {args.confidence}", file=sys.stderr)
+        return 2
+    try:
+        from qdrl.report import report
+
+        result = report(args.dirs, args.out, confidence=args.confidence)
+    except RunError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `qdrl` console script."""
     from qdrl import quiet
@@ -181,7 +216,14 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p_run = sub.add_parser("run", help="run an experiment spec (TOML)")
-    p_run.add_argument("spec", help="path to a spec, e.g. agents/default.toml")
+    p_run.add_argument(
+        "spec", help="a packaged spec's name (e.g. default; `qdrl list` shows them) or a path to a spec"
+    )
+    p_run.add_argument(
+        "--seeds", default=None, metavar="SEEDS",
+        help='run every seed of SEEDS ("0-4" or "0,3,7"), one after the other, into OUT/seed_<n>/; '
+        "with --resume, finished seeds are skipped and interrupted ones resume",
+    )
     p_run.add_argument(
         "--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
         help="override one spec value (repeatable); VALUE is read as TOML",
@@ -223,6 +265,17 @@ def main(argv: list[str] | None = None) -> int:
         "--out", default=None, help="output file, .html or .png (default: DIR/plots/replay_cell<N>.html|png)"
     )
     p_render.set_defaults(fn=_cmd_render)
+
+    p_report = sub.add_parser(
+        "report",
+        help="compare runs and sweeps: mean and bootstrap band per metric, final-value table, heatmaps",
+    )
+    p_report.add_argument("dirs", nargs="+", metavar="DIR", help="run directories, sweeps or folders of runs")
+    p_report.add_argument("--out", default="report", help="output directory (default: report)")
+    p_report.add_argument(
+        "--confidence", type=float, default=0.95, help="confidence level of the bands (default: 0.95)"
+    )
+    p_report.set_defaults(fn=_cmd_report)
 
     p_reeval = sub.add_parser(
         "reevaluate",

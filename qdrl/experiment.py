@@ -27,7 +27,7 @@ from typing import Annotated, Any, NamedTuple, Protocol
 import jax
 import numpy as np
 
-from qdrl import checkpoint, compile_cache, interrupt
+from qdrl import checkpoint, compile_cache, interrupt, loggers, specs
 from qdrl.config import (
     ConfigError,
     OneOf,
@@ -67,13 +67,23 @@ class ExperimentConfig:
 
 @dataclasses.dataclass(frozen=True)
 class LogConfig:
-    """The `[log]` section: how the driver records a run."""
+    """The `[log]` section: how the driver records a run.
+
+    metrics.csv is always written and is the source of truth; TensorBoard and
+    Weights & Biases receive the same rows as they are logged (`qdrl.loggers`).
+    """
 
     checkpoint_every: PositiveInt = 1  # log points between checkpoints
     keep_checkpoints: PositiveInt = 2  # newest checkpoints kept on disk
     progress: bool = True  # show a progress bar
     plots: bool = True  # write plots/*.png at the end
     compile_cache: bool = True  # jax's persistent compilation cache (qdrl.compile_cache)
+    tensorboard: bool = False  # also write TensorBoard event files to <run>/tensorboard/ (tensorboardX)
+    wandb: bool = False  # also log to Weights & Biases (pip install "qdrl[wandb]")
+    wandb_project: str = "qdrl"  # W&B project
+    wandb_entity: str = ""  # W&B entity (user or team); default: the logged-in user's
+    wandb_group: str = ""  # W&B group; default: the experiment's name, so seeds group together
+    wandb_mode: loggers.WandbMode = "online"  # "offline" writes to <run>/wandb/ for `wandb sync`
 
     def check(self) -> None:
         check_fields(self, "log")
@@ -299,8 +309,8 @@ class RunInterrupted(KeyboardInterrupt):
 
 
 def default_out_dir(spec_path: str | Path) -> Path:
-    """Where `qdrl run SPEC` writes without --out: runs/<spec file stem>."""
-    return Path("runs") / Path(spec_path).stem
+    """Where `qdrl run SPEC` writes without --out: runs/<spec file stem> (SPEC: a path or a name)."""
+    return Path("runs") / Path(spec_path).name.removesuffix(".toml")
 
 
 def run_spec(
@@ -309,16 +319,116 @@ def run_spec(
     out_dir: str | Path | None = None,
     resume: bool = False,
     overwrite: bool = False,
+    on_start: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
-    """Run the spec at `spec_path` (with `--set` overrides) and return its summary."""
+    """Run the spec at `spec_path` (a path, or a packaged spec's name; with `--set`
+    overrides) and return its summary; `on_start` as in `run`."""
     spec = load_spec(spec_path, overrides)
     out = Path(out_dir) if out_dir else default_out_dir(spec_path)
-    return run(spec, out, resume, overwrite)
+    return run(spec, out, resume, overwrite, on_start=on_start)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """The seeds of `--seeds`: a range "0-4" (both ends included), a list "0,3,7", or both
+    ("0-2,7"); ConfigError saying what was expected otherwise."""
+    seeds: list[int] = []
+    expected = 'expected seeds as "0-4" (a range) or "0,3,7" (a list)'
+    for part in text.split(","):
+        bounds = part.strip().split("-")
+        try:
+            if len(bounds) > 2:
+                raise ValueError
+            lo, hi = int(bounds[0]), int(bounds[-1])
+        except ValueError:
+            raise ConfigError(f"--seeds: {expected}, got {text!r}") from None
+        if lo > hi or lo < 0 or hi > 2**32 - 1:
+            raise ConfigError(f"--seeds: {expected}, increasing and in [0, 2**32), got {text!r}")
+        seeds.extend(s for s in range(lo, hi + 1) if s not in seeds)
+    return seeds
+
+
+def seed_dir(out_dir: str | Path, seed: int) -> Path:
+    """Where seed `seed` of a sweep into `out_dir` writes: `out_dir/seed_<seed>`."""
+    return Path(out_dir) / f"seed_{seed}"
+
+
+def _with_seed(spec: Mapping[str, Any], seed: int) -> dict[str, Any]:
+    out = {k: dict(v) if isinstance(v, dict) else v for k, v in spec.items()}
+    out.setdefault("experiment", {})["seed"] = seed
+    return out
+
+
+def _finished_as_given(out_dir: Path, spec: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The summary of a finished run in `out_dir` whose resolved spec agrees with every key
+    `spec` gives, or None (not finished, or another length or setting)."""
+    summary, config = out_dir / "summary.json", out_dir / "config.toml"
+    if not (summary.is_file() and config.is_file()):
+        return None
+    given = {f"{s}.{k}": v for s, table in spec.items() if isinstance(table, dict) for k, v in table.items()}
+    resolved = _flat(config.read_text())
+    if any(k not in resolved or resolved[k] != v for k, v in given.items()):
+        return None
+    loaded: dict[str, Any] = json.loads(summary.read_text())
+    return loaded
+
+
+def run_seeds(
+    spec_path: str | Path,
+    seeds: list[int],
+    overrides: list[str] | None = None,
+    out_dir: str | Path | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    on_start: Callable[[Path], None] | None = None,
+) -> dict[str, Any]:
+    """Run a spec once per seed, one after the other, each into `out_dir/seed_<n>/`.
+
+    Each seed is a complete run (`run`), as `qdrl run SPEC --set experiment.seed=n`
+    would make it, so a seed of a sweep is bit-identical to the same seed run alone.
+    Seeds run one after the other: for MAP-Elites on the arm (5 seeds, 1,000
+    iterations, 2-core CPU) vmapping them in one compiled chunk was 1.11-1.17x
+    slower and not bit-identical to single-seed runs
+    (`benchmarks/seeds_sequential_vs_vmap.py`). With `resume`, finished seeds are
+    skipped, interrupted ones resume from their checkpoints and the others start.
+
+    Returns {"out": the sweep directory, "runs": {seed: summary}}; `on_start` is called
+    as each seed's run starts (`run`).
+    Raises ConfigError (a bad spec, or a seed directory that already holds a run
+    without `resume` or `overwrite`) before anything compiles, and RunInterrupted
+    as `run` does.
+    """
+    if not seeds:
+        raise ConfigError("--seeds: expected at least one seed, got none")
+    base = load_spec(spec_path, overrides)
+    out = Path(out_dir) if out_dir else default_out_dir(spec_path)
+    check_spec(_with_seed(base, seeds[0]))
+    if not resume and not overwrite:
+        for seed in seeds:
+            if checkpoint.checkpoints(seed_dir(out, seed) / "checkpoints"):
+                raise ConfigError(
+                    f"{seed_dir(out, seed)} already holds a run with checkpoints; pass --resume to "
+                    "continue the sweep, --overwrite to discard its runs, or --out for a new directory"
+                )
+    summaries: dict[int, dict[str, Any]] = {}
+    for i, seed in enumerate(seeds):
+        spec, where = _with_seed(base, seed), seed_dir(out, seed)
+        finished = _finished_as_given(where, spec) if resume else None
+        if finished is not None:
+            print(f"qdrl: seed {seed} ({i + 1} of {len(seeds)}): finished in {where}, skipped", file=sys.stderr)
+            summaries[seed] = finished
+            continue
+        started = bool(checkpoint.checkpoints(where / "checkpoints"))
+        summaries[seed] = run(
+            spec, where, resume=resume and started, overwrite=overwrite,
+            label=f"seed {seed}, {i + 1} of {len(seeds)}", on_start=on_start,
+        )
+    return {"out": str(out), "runs": summaries}
 
 
 def load_spec(spec_path: str | Path, overrides: list[str] | None = None) -> dict[str, Any]:
-    """The spec at `spec_path` with `--set` overrides; `experiment.name` defaults to the file's stem."""
-    spec_path = Path(spec_path)
+    """The spec at `spec_path` (a path, or a packaged spec's name: `qdrl.specs.resolve`) with
+    `--set` overrides; `experiment.name` defaults to the file's stem."""
+    spec_path = specs.resolve(spec_path)
     spec = apply_overrides(load_toml(spec_path), overrides or [])
     exp = spec.setdefault("experiment", {})
     if isinstance(exp, dict) and not exp.get("name"):
@@ -336,10 +446,29 @@ def _progress_value(run_: Run, row: Mapping[str, float], chunk: int) -> int:
     return chunk + 1 if run_.progress_unit == "log_point" else int(row[run_.progress_unit])
 
 
+def _make_loggers(log: LogConfig, out_dir: Path, exp: ExperimentConfig, config_text: str) -> loggers.Loggers:
+    """The TensorBoard and W&B loggers that `[log]` asks for (none by default)."""
+    chosen: list[loggers.Logger] = []
+    if log.tensorboard:
+        chosen.append(loggers.TensorBoardLogger(out_dir / "tensorboard", config_text))
+    if log.wandb:
+        chosen.append(loggers.WandbLogger(
+            out_dir, tomllib.loads(config_text), name=f"{exp.name} seed {exp.seed}",
+            group=log.wandb_group or exp.name, project=log.wandb_project, entity=log.wandb_entity,
+            mode=log.wandb_mode,
+        ))
+    return loggers.Loggers(chosen)
+
+
 def run(
-    spec: Mapping[str, Any], out_dir: Path, resume: bool = False, overwrite: bool = False
+    spec: Mapping[str, Any], out_dir: Path, resume: bool = False, overwrite: bool = False,
+    label: str = "", on_start: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """Run a parsed spec into `out_dir`; see the module docstring for what it writes.
+
+    `label` is added to the progress line (a sweep names the seed there);
+    `on_start(out_dir)` is called once the spec and any resume are checked, before
+    compiling (`qdrl run` says there where it writes).
 
     Raises:
       ConfigError: a bad spec, or a --resume that cannot be honoured; before any compilation.
@@ -366,15 +495,19 @@ def run(
     out_dir.mkdir(parents=True, exist_ok=True)
     if not resume:
         (out_dir / "config.toml").write_text(config_text)
+    if on_start is not None:
+        on_start(out_dir)
 
-    label = f"{exp.algorithm} on {run_.task}"
-    progress = RunProgress(log.progress, label, run_.progress_unit, run_.progress_total)
+    what = f"{exp.algorithm} on {run_.task}" + (f" ({label})" if label else "")
+    progress = RunProgress(log.progress, what, run_.progress_unit, run_.progress_total)
     key = compile_cache.spec_key(config_text)
     stop_message = (
         "qdrl: stopping after the chunk in flight and saving a checkpoint "
         "(press Ctrl-C again to abort at once; the checkpoints on disk are kept)"
     )
-    with compile_cache.enabled(log.compile_cache), interrupt.Interrupts(stop_message) as stop, \
+    # Loggers start before compiling, so a missing package fails at once.
+    with _make_loggers(log, out_dir, exp, config_text) as dashboards, \
+            compile_cache.enabled(log.compile_cache), interrupt.Interrupts(stop_message) as stop, \
             interrupt.Worker() as worker:
 
         def prepare() -> tuple[Any, dict[str, Any], Path | None, list[tuple[Path, str]], float]:
@@ -442,12 +575,15 @@ def run(
                 # the time of its earlier sessions.
                 wall_s = wall_offset + time.perf_counter() - started
                 row = {"log_point": chunk, **row, "wall_s": wall_s}
-                # Throughput excludes compilation; QD runs also count evaluations.
-                row["env_steps_per_s"] = row["env_steps"] / run_s if run_s > 0 else math.nan
+                # Throughput excludes compilation; QD runs also count evaluations. Tasks that
+                # step no environment (functions, the arm) have no env steps per second.
+                if row["env_steps"] > 0:
+                    row["env_steps_per_s"] = row["env_steps"] / run_s if run_s > 0 else math.nan
                 if "evaluations" in row:
                     row["evaluations_per_s"] = row["evaluations"] / run_s if run_s > 0 else math.nan
                 rows.append(row)
                 _append_row(metrics_path, row)
+                dashboards.log(row, _progress_value(run_, row, chunk))
                 last = chunk == run_.num_chunks - 1
                 saved = (chunk + 1) % log.checkpoint_every == 0 or last
                 if saved:
@@ -473,19 +609,41 @@ def run(
         "wall_s": final.get("wall_s", 0.0),
         "compile_s": compile_s,
         "run_s": run_s,
-        "env_steps_per_s": final.get("env_steps_per_s", math.nan),
     }
+    if "env_steps_per_s" in final:
+        summary["env_steps_per_s"] = final["env_steps_per_s"]
     if "evaluations" in final:
         summary["evaluations"] = int(final["evaluations"])
     summary.update({k: v for k, v in final.items() if k not in summary and k != "log_point"})
+    summary.update(_descriptor_space(run_))
     summary.update(run_.finish(state, rows, out_dir))
     if log.plots and rows:
         from qdrl import plotting
 
-        plotting.plot_curves(rows, out_dir / "plots", title=f"{exp.algorithm} on {run_.task}")
+        plotting.plot_curves(
+            rows, out_dir / "plots", x_keys=plotting.default_x_keys(rows), title=f"{exp.algorithm} on {run_.task}"
+        )
     summary = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default) + "\n")
     return summary
+
+
+def _descriptor_space(run_: Run) -> dict[str, Any]:
+    """The bounds and names of the run's descriptor space (a QD run's task, or an RL run's
+    passive archive), for reports that draw repertoires without rebuilding the run."""
+    task = getattr(run_, "qd_task", None)
+    if task is not None:
+        low, high, names = task.descriptor_low, task.descriptor_high, task.descriptor_names
+    elif hasattr(run_, "archive_cfg") and hasattr(run_, "archive_labels"):
+        cfg = run_.archive_cfg
+        low, high, names = cfg.low, cfg.high, run_.archive_labels
+    else:
+        return {}
+    return {
+        "descriptor_low": [float(v) for v in low],
+        "descriptor_high": [float(v) for v in high],
+        "descriptor_names": list(names),
+    }
 
 
 def _newest_log_point(ckpt_dir: Path) -> tuple[Path | None, int]:
@@ -519,9 +677,14 @@ def _check_resume_checkpoints(found: list[Path], run_: Run) -> None:
     raise ConfigError(f"--resume: no usable checkpoint in {found[0].parent} ({'; '.join(reasons)})")
 
 
-def resume_command(spec_path: str | Path, overrides: list[str], out_dir: str | Path) -> str:
-    """The shell command that resumes a run started by `qdrl run` with these arguments."""
+def resume_command(
+    spec_path: str | Path, overrides: list[str], out_dir: str | Path, seeds: str | None = None
+) -> str:
+    """The shell command that resumes a run (or, with `seeds`, a sweep) started by `qdrl run`
+    with these arguments."""
     args = ["qdrl", "run", str(spec_path)]
+    if seeds is not None:
+        args += ["--seeds", seeds]
     for text in overrides:
         args += ["--set", text]
     return shlex.join([*args, "--out", str(out_dir), "--resume"])

@@ -9,10 +9,12 @@ is registered globally, so nothing accumulates across calls.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
 import re
-from collections.abc import Mapping, Sequence
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,13 +25,19 @@ from matplotlib.figure import Figure
 
 __all__ = [
     "COUNTER_KEYS",
+    "X_KEYS",
+    "Wall",
+    "default_x_keys",
     "default_y_keys",
+    "draw_walls",
+    "env_walls",
     "plot_cell_fronts",
     "plot_cell_hypervolumes",
     "plot_comparison",
     "plot_curves",
     "plot_pareto_front",
     "plot_repertoire",
+    "plot_repertoires",
     "plot_skills",
 ]
 
@@ -57,6 +65,8 @@ _AXIS_LABELS = {
     "wall_s": "wall time (s)",
     "evaluations": "evaluations",
 }
+# The columns a run's metrics are drawn against, in this order when present.
+X_KEYS = ("evaluations", "env_steps", "wall_s")
 # Below this many points each point gets a marker, so a single point is visible.
 _MARKER_BELOW = 30
 
@@ -102,6 +112,37 @@ def _file_stem(key: str) -> str:
 def _draw(ax: Axes, xs: list[float], ys: list[float], label: str | None = None) -> None:
     marker = "o" if len(xs) < _MARKER_BELOW else None
     ax.plot(xs, ys, marker=marker, markersize=3, linewidth=1.5, label=label)
+
+
+def _compact(value: float, _pos: int | None = None) -> str:
+    """A tick label of at most a few characters: 150000 -> 150k, 2500000 -> 2.5M."""
+    size = abs(value)
+    for scale, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if size >= scale:
+            return f"{value / scale:.3g}{suffix}"
+    return f"{value:.3g}"
+
+
+def _tidy_x(ax: Axes) -> None:
+    """At most 6 x ticks with compact labels, so labels of large counts never overlap."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=5, min_n_ticks=2))
+    ax.xaxis.set_major_formatter(FuncFormatter(_compact))
+
+
+def default_x_keys(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The columns of `X_KEYS` that the rows hold with a non-zero value somewhere.
+
+    A task that steps no environment (a function, the arm) counts no env steps: its
+    QD curves are drawn against evaluations and wall time only.
+    """
+    keys = []
+    for key in X_KEYS:
+        values = [_as_float(row.get(key)) for row in rows]
+        if any(v is not None and v != 0.0 for v in values):
+            keys.append(key)
+    return keys or ["wall_s"]
 
 
 def _new_figure(ncols: int) -> Figure:
@@ -175,6 +216,7 @@ def plot_curves(
             ax.set_xlabel(_AXIS_LABELS.get(x_key, x_key))
             ax.set_ylabel(y_key)
             ax.grid(True, alpha=0.3)
+            _tidy_x(ax)
         fig.suptitle(f"{title}: {y_key}" if title else y_key)
         path = out / f"{_file_stem(y_key)}.png"
         fig.savefig(path, dpi=100)
@@ -182,21 +224,64 @@ def plot_curves(
     return paths
 
 
+Rows = Sequence[Mapping[str, Any]]
+
+
+@contextlib.contextmanager
+def _nan_quiet() -> Iterator[None]:
+    """Silences numpy's "mean of empty slice" warnings (the result is NaN, as wanted)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
+
+
+def _is_rows(value: Any) -> bool:
+    return not value or isinstance(value[0], Mapping)
+
+
+def _seed_curves(runs: Sequence[Rows], x_key: str, y_key: str) -> tuple[np.ndarray, np.ndarray]:
+    """x (T,) and y (n, T) of n seeds aligned by log point; x is the seeds' mean x.
+
+    Seeds of one spec log at the same points (the same evaluations or env steps;
+    wall time differs), so log point t of every seed is one point of the curve.
+    Missing values (a shorter, interrupted seed) are NaN and left out of the mean.
+    """
+    length = max((len(rows) for rows in runs), default=0)
+    xs = np.full((len(runs), length), np.nan)
+    ys = np.full((len(runs), length), np.nan)
+    for i, rows in enumerate(runs):
+        for t, row in enumerate(rows):
+            x, y = _as_float(row.get(x_key)), _as_float(row.get(y_key))
+            if x is not None and y is not None:
+                xs[i, t], ys[i, t] = x, y
+    keep = ~np.all(np.isnan(xs), axis=0)
+    with _nan_quiet():
+        return np.nanmean(xs[:, keep], axis=0), ys[:, keep]
+
+
 def plot_comparison(
-    runs: Mapping[str, Sequence[Mapping[str, Any]]],
+    runs: Mapping[str, Rows | Sequence[Rows]],
     y_key: str,
-    x_key: str,
+    x_key: str | Sequence[str],
     path: str | Path,
     title: str = "",
+    confidence: float = 0.95,
 ) -> Path:
-    """Writes one PNG with every run's `y_key` against `x_key`, labelled by run name.
+    """Writes one PNG comparing runs' `y_key` against `x_key`, one colour per name.
+
+    A name maps to one run's rows (drawn as a line) or to several runs of it
+    (seeds): then the line is their mean at each log point and a band its
+    `confidence` percentile bootstrap interval over the seeds (`qdrl.stats`).
 
     Args:
-      runs: run name (e.g. the algorithm) -> that run's metric rows.
+      runs: name (e.g. the spec or algorithm) -> that run's metric rows, or a list
+        of such row lists, one per seed.
       y_key: metric to compare; must appear in at least one run.
-      x_key: x column, e.g. `env_steps` or `wall_s`; must appear in at least one run.
+      x_key: x column, e.g. `evaluations`, `env_steps` or `wall_s`, or several (one
+        panel each, side by side); each must appear in at least one run.
       path: PNG to write; its parent directory is created if needed.
       title: figure title; defaults to `y_key`.
+      confidence: the band's confidence level.
 
     Returns:
       `path`.
@@ -206,24 +291,52 @@ def plot_comparison(
     """
     if not runs:
         raise ValueError("runs is empty; nothing to compare")
-    for role, key in (("y_key", y_key), ("x_key", x_key)):
-        if not any(_has_key(rows, key) for rows in runs.values()):
+    groups: dict[str, list[Rows]] = {
+        name: [value] if _is_rows(value) else list(value)  # type: ignore[list-item, arg-type]
+        for name, value in runs.items()
+    }
+    x_keys = [x_key] if isinstance(x_key, str) else list(x_key)
+    for role, key in (("y_key", y_key), *(("x_key", x) for x in x_keys)):
+        if not any(_has_key(rows, key) for seeds in groups.values() for rows in seeds):
             raise ValueError(f"{role} {key!r} appears in no row of runs {sorted(runs)}")
-    fig = _new_figure(1)
-    ax = fig.subplots()
-    for name, rows in runs.items():
-        xs, ys = _points(rows, x_key, y_key)
-        # A run without data still gets its legend entry, so its absence is visible.
-        _draw(ax, xs, ys, label=name if xs else f"{name} (no data)")
-    ax.set_xlabel(_AXIS_LABELS.get(x_key, x_key))
-    ax.set_ylabel(y_key)
-    ax.grid(True, alpha=0.3)
-    ax.legend()
+    fig = _new_figure(len(x_keys))
+    axes = fig.subplots(1, len(x_keys), squeeze=False)[0]
+    for ax, x in zip(axes, x_keys, strict=True):
+        _draw_comparison(ax, groups, x, y_key, confidence)
+    axes[0].legend(fontsize=8)
     fig.suptitle(title or y_key)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
     return out
+
+
+def _draw_comparison(
+    ax: Axes, groups: Mapping[str, Sequence[Rows]], x_key: str, y_key: str, confidence: float
+) -> None:
+    """One panel of `plot_comparison`: a mean line (and a band for several seeds) per name."""
+    from qdrl.stats import bootstrap_ci
+
+    for index, (name, seeds) in enumerate(groups.items()):
+        colour = f"C{index % 10}"
+        xs, ys = _seed_curves(seeds, x_key, y_key)
+        shown = np.sum(~np.isnan(ys), axis=0) > 0
+        if not np.any(shown):
+            # A run without data still gets its legend entry, so its absence is visible.
+            ax.plot([], [], color=colour, label=f"{name} (no data)")
+            continue
+        with _nan_quiet():
+            mean = np.nanmean(ys, axis=0)
+        label = name if len(seeds) == 1 else f"{name} ({len(seeds)} seeds)"
+        marker = "o" if int(shown.sum()) < _MARKER_BELOW else None
+        ax.plot(xs[shown], mean[shown], color=colour, marker=marker, markersize=3, linewidth=1.5, label=label)
+        if len(seeds) > 1:
+            low, high = bootstrap_ci(ys[:, shown], confidence=confidence)
+            ax.fill_between(xs[shown], low, high, color=colour, alpha=0.2, linewidth=0)
+    ax.set_xlabel(_AXIS_LABELS.get(x_key, x_key))
+    ax.set_ylabel(y_key)
+    ax.grid(True, alpha=0.3)
+    _tidy_x(ax)
 
 
 # --- repertoires -------------------------------------------------------------------
@@ -299,6 +412,7 @@ def plot_repertoire(
     cmap: str = "viridis",
     vmin: float | None = None,
     vmax: float | None = None,
+    labels: Sequence[str] | None = None,
 ) -> Path:
     """Writes a PNG heatmap of the elites' fitness over two descriptor dimensions.
 
@@ -325,17 +439,81 @@ def plot_repertoire(
       cmap: matplotlib colormap name.
       vmin, vmax: colour range; default the range of the stored fitnesses (fix it
         to compare several plots).
+      labels: the descriptor dimensions' names for the axes (`Task.descriptor_names`,
+        e.g. "back foot contact"); default "descriptor 0", "descriptor 1", ...
 
     Returns:
       `path`.
     """
-    from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
+
+    norm, colours = _colour_scale([repertoire], vmin, vmax, cmap)
+    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    _draw_repertoire(ax, repertoire, low, high, dims, norm, colours, labels)
+    fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=ax, label="fitness")
+    return _save(fig, path, title)
+
+
+def plot_repertoires(
+    repertoires: Mapping[str, Any],
+    path: str | Path,
+    low: float | Sequence[float],
+    high: float | Sequence[float],
+    title: str = "",
+    dims: tuple[int, int] = (0, 1),
+    cmap: str = "viridis",
+    labels: Sequence[str] | None = None,
+) -> Path:
+    """Writes one PNG with several repertoires of one task side by side, on one colour scale.
+
+    Each panel is drawn as `plot_repertoire` draws one; `repertoires` maps a panel's
+    title (e.g. the spec's name) to its repertoire. Returns `path`.
+    """
+    from matplotlib.cm import ScalarMappable
+
+    if not repertoires:
+        raise ValueError("repertoires is empty; nothing to draw")
+    norm, colours = _colour_scale(list(repertoires.values()), None, None, cmap)
+    fig = Figure(figsize=(4.6 * len(repertoires) + 1.2, 4.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(repertoires), squeeze=False)[0]
+    for ax, (name, repertoire) in zip(axes, repertoires.items(), strict=True):
+        _draw_repertoire(ax, repertoire, low, high, dims, norm, colours, labels)
+        ax.set_title(name, fontsize=10)
+    fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=list(axes), label="fitness")
+    return _save(fig, path, title)
+
+
+def _colour_scale(repertoires: Sequence[Any], vmin: float | None, vmax: float | None, cmap: str) -> tuple[Any, Any]:
+    """A colour normalisation over the filled cells of every repertoire, and the colormap
+    with empty cells (NaN) white."""
+    from matplotlib import colormaps
     from matplotlib.colors import Normalize
 
+    values = np.concatenate([np.asarray(r.fitnesses, dtype=np.float64).ravel() for r in repertoires])
+    shown = values[np.isfinite(values)]
+    lo_c = vmin if vmin is not None else (float(shown.min()) if shown.size else 0.0)
+    hi_c = vmax if vmax is not None else (float(shown.max()) if shown.size else 1.0)
+    return Normalize(lo_c, hi_c if hi_c > lo_c else lo_c + 1.0), colormaps[cmap].with_extremes(bad="white")
+
+
+def _draw_repertoire(
+    ax: Axes,
+    repertoire: Any,
+    low: float | Sequence[float],
+    high: float | Sequence[float],
+    dims: tuple[int, int],
+    norm: Any,
+    colours: Any,
+    labels: Sequence[str] | None,
+) -> None:
+    """Draws one repertoire's heatmap on `ax` (see `plot_repertoire`)."""
     fitnesses = np.asarray(repertoire.fitnesses, dtype=np.float64)
     descriptors = np.asarray(repertoire.descriptors, dtype=np.float64)
     num_dims = descriptors.shape[1]
+    names = _names(labels, num_dims)
     lo = _repertoire_bounds(low, num_dims, "low")
     hi = _repertoire_bounds(high, num_dims, "high")
     grid_shape = getattr(repertoire, "grid_shape", None)
@@ -361,14 +539,6 @@ def plot_repertoire(
 
     filled = fitnesses > -np.inf
     shown = fitnesses[filled & np.isfinite(fitnesses)]
-    lo_c = vmin if vmin is not None else (float(shown.min()) if shown.size else 0.0)
-    hi_c = vmax if vmax is not None else (float(shown.max()) if shown.size else 1.0)
-    norm = Normalize(lo_c, hi_c if hi_c > lo_c else lo_c + 1.0)
-    colours = colormaps[cmap].with_extremes(bad="white")
-
-    fig = Figure(figsize=(6.0, 5.0), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
     ax.set_facecolor("white")
     box = (lo[dx], hi[dx], lo[dy], hi[dy])
 
@@ -424,13 +594,64 @@ def plot_repertoire(
         ax.text(0.5, 0.5, "empty repertoire", ha="center", va="center", transform=ax.transAxes)
     ax.set_xlim(box[0], box[1])
     ax.set_ylim(box[2], box[3])
-    ax.set_xlabel(f"descriptor {dx}")
+    ax.set_xlabel(names[dx])
     if strip:
         ax.set_yticks([])
     else:
-        ax.set_ylabel(f"descriptor {dy}")
-    fig.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=ax, label="fitness")
-    return _save(fig, path, title)
+        ax.set_ylabel(names[dy])
+
+
+def _names(labels: Sequence[str] | None, num_dims: int) -> list[str]:
+    if not labels:
+        return [f"descriptor {i}" for i in range(num_dims)]
+    if len(labels) != num_dims:
+        raise ValueError(f"labels: expected {num_dims} names (one per descriptor), got {list(labels)}")
+    return list(labels)
+
+
+# (start x-y, end x-y, half-thickness): a wall seen from above; half-thickness 0 is a segment.
+Wall = tuple[tuple[float, float], tuple[float, float], float]
+
+
+def env_walls(env: Any) -> list[Wall]:
+    """The walls of a maze environment seen from above (none for other environments).
+
+    The point maze's segments (`env.walls`, (W, 2, 2)) and the capsules of brax's
+    ant maze and ant trap (`env.brax_env.walls`: `start`, `end`, `radius`).
+    """
+    brax_env = getattr(env, "brax_env", None)
+    if brax_env is not None:
+        return [(tuple(w.start), tuple(w.end), float(w.radius)) for w in getattr(brax_env, "walls", ())]
+    segments = getattr(env, "walls", None)
+    if segments is None:
+        return []
+    return [((a[0], a[1]), (b[0], b[1]), 0.0) for a, b in np.asarray(segments, np.float64).tolist()]
+
+
+def _outline(wall: Wall) -> np.ndarray:
+    """The outline of a capsule (a segment widened by its half-thickness) as a polygon (k, 2)."""
+    (x0, y0), (x1, y1), r = wall
+    angle = np.arctan2(y1 - y0, x1 - x0)
+    half = np.linspace(-np.pi / 2, np.pi / 2, 16)
+    end = np.stack([x1 + r * np.cos(angle + half), y1 + r * np.sin(angle + half)], axis=1)
+    start = np.stack([x0 + r * np.cos(angle + np.pi + half), y0 + r * np.sin(angle + np.pi + half)], axis=1)
+    return np.concatenate([end, start])
+
+
+def draw_walls(ax: Axes, walls: Sequence[Wall], dims: tuple[int, int] = (0, 1)) -> None:
+    """Draws walls (x-y, from above) on `ax`: capsules filled grey, segments as thick lines.
+
+    Nothing is drawn unless `dims` is (0, 1): walls live in the x-y plane.
+    """
+    from matplotlib.patches import Polygon
+
+    if tuple(dims) != (0, 1):
+        return
+    for wall in walls:
+        if wall[2] > 0:
+            ax.add_patch(Polygon(_outline(wall), closed=True, color="0.45", zorder=3))
+        else:
+            ax.plot([wall[0][0], wall[1][0]], [wall[0][1], wall[1][1]], color="0.3", linewidth=3, zorder=3)
 
 
 def plot_skills(
@@ -444,6 +665,8 @@ def plot_skills(
     title: str = "",
     trajectories_are_positions: bool = True,
     dims: tuple[int, int] = (0, 1),
+    walls: Sequence[Wall] = (),
+    labels: Sequence[str] | None = None,
 ) -> Path:
     """Writes a PNG of each skill's trajectory in descriptor space, beside the archive heatmap.
 
@@ -464,6 +687,9 @@ def plot_skills(
       title: figure title.
       trajectories_are_positions: see above.
       dims: the two descriptor dimensions shown.
+      walls: a maze's walls (`env_walls`), drawn on both panels when the trajectories
+        are x-y positions.
+      labels: the descriptor dimensions' names (default "descriptor 0", ...).
     """
     from matplotlib import colormaps
     from matplotlib.colors import Normalize
@@ -475,6 +701,7 @@ def plot_skills(
             f"trajectories (T, B, D) and mask (T, B) expected, got {traj.shape} and {valid.shape}"
         )
     dx, dy = dims
+    names = _names(labels, traj.shape[2])
     if not trajectories_are_positions:
         counts = np.maximum(np.cumsum(valid, axis=0), 1.0)[..., None]
         traj = np.cumsum(traj * valid[..., None], axis=0) / counts
@@ -496,8 +723,13 @@ def plot_skills(
         ax.plot(xs[-1], ys[-1], "x", color=colour, markersize=6)
     ax.set_xlim(low[dx], high[dx])
     ax.set_ylim(low[dy], high[dy])
-    ax.set_xlabel(f"descriptor {dx}")
-    ax.set_ylabel(f"descriptor {dy}")
+    # The paths are positions over time: "final x" on the archive is "x" along a path.
+    path_names = [n.removeprefix("final ") for n in names] if trajectories_are_positions else names
+    ax.set_xlabel(path_names[dx])
+    ax.set_ylabel(path_names[dy])
+    if trajectories_are_positions:
+        for panel in axes:
+            draw_walls(panel, walls, (dx, dy))
     kind = "trajectories" if trajectories_are_positions else "running-mean descriptors"
     ax.set_title(f"{num_skills} skills: {kind}")
     if archive is not None:
@@ -510,7 +742,8 @@ def plot_skills(
         )
         filled = int(np.sum(fitnesses > -np.inf))
         axes[1].set_title(f"passive archive: {filled} / {fitnesses.size} cells")
-        axes[1].set_xlabel(f"descriptor {dx}")
+        axes[1].set_xlabel(names[dx])
+        axes[1].set_ylabel(names[dy])
         fig.colorbar(mesh, ax=axes[1], label="fitness (return)")
     return _save(fig, path, title)
 

@@ -22,12 +22,11 @@ from typing import Any
 import jax
 import numpy as np
 
+from qdrl.plotting import Wall, draw_walls, env_walls
 from qdrl.runs import LoadedRun, RunError, Trajectory
 
 __all__ = ["render", "write_html", "write_path_png"]
 
-# (start x-y, end x-y, half-thickness): a wall as drawn from above
-Wall = tuple[tuple[float, float], tuple[float, float], float]
 
 
 def _kind(run: LoadedRun) -> tuple[str, tuple[str, ...]]:
@@ -66,18 +65,15 @@ def render(run: LoadedRun, cell: int | None = None, out: str | Path | None = Non
     if path.suffix == ".html":
         write_html(env.brax_env.sys, episode, path)
     elif kind == "point_maze":
-        walls = [(tuple(w[0]), tuple(w[1]), 0.0) for w in np.asarray(env.walls).tolist()]
         goal = np.asarray(env.goal)
         write_path_png(
-            episode, path, walls, (-1.0, -1.0), (1.0, 1.0), goal=(float(goal[0]), float(goal[1])),
+            episode, path, env_walls(env), (-1.0, -1.0), (1.0, 1.0), goal=(float(goal[0]), float(goal[1])),
             goal_half_width=float(env.goal_half_width), title=title,
         )
     else:
-        brax_env = env.brax_env
-        walls = [(w.start, w.end, w.radius) for w in brax_env.walls]
         write_path_png(
-            episode, path, walls, run.qd_task.descriptor_low, run.qd_task.descriptor_high,
-            goal=brax_env.target, goal_half_width=0.5, title=title,
+            episode, path, env_walls(env), run.qd_task.descriptor_low, run.qd_task.descriptor_high,
+            goal=env.brax_env.target, goal_half_width=0.5, title=title,
         )
     return {
         "out": str(path), "cell": elite.cell, "fitness": elite.fitness, "return": episode.return_,
@@ -101,16 +97,6 @@ def write_html(sys: Any, episode: Trajectory, path: Path) -> Path:
     return path
 
 
-def _outline(wall: Wall) -> np.ndarray:
-    """The outline of a capsule (a segment widened by its half-thickness) as a polygon (k, 2)."""
-    (x0, y0), (x1, y1), r = wall
-    angle = np.arctan2(y1 - y0, x1 - x0)
-    half = np.linspace(-np.pi / 2, np.pi / 2, 16)
-    end = np.stack([x1 + r * np.cos(angle + half), y1 + r * np.sin(angle + half)], axis=1)
-    start = np.stack([x0 + r * np.cos(angle + np.pi + half), y0 + r * np.sin(angle + np.pi + half)], axis=1)
-    return np.concatenate([end, start])
-
-
 def write_path_png(
     episode: Trajectory,
     path: Path,
@@ -124,7 +110,7 @@ def write_path_png(
     """A PNG of the episode's x-y path (its state descriptors) over the walls, seen from above."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.patches import Polygon, Rectangle
+    from matplotlib.patches import Rectangle
 
     xy = np.asarray(episode.state_descriptors)[: episode.length + 1, :2]
     lo = np.minimum(np.asarray(low, float)[:2], xy.min(axis=0))
@@ -134,11 +120,7 @@ def write_path_png(
     fig = Figure(figsize=(6.0, 1.0 + 5.0 * aspect), layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    for wall in walls:
-        if wall[2] > 0:
-            ax.add_patch(Polygon(_outline(wall), closed=True, color="0.45"))
-        else:
-            ax.plot([wall[0][0], wall[1][0]], [wall[0][1], wall[1][1]], color="0.3", linewidth=3)
+    draw_walls(ax, walls)
     if goal is not None:
         w = goal_half_width
         ax.add_patch(Rectangle((goal[0] - w, goal[1] - w), 2 * w, 2 * w, color="tab:red", alpha=0.6, label="goal"))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -34,7 +34,17 @@ if TYPE_CHECKING:
     from qdrl.qd.repertoires import CellRepertoire
     from qdrl.runners.qd import QDRun
 
-__all__ = ["Elite", "LoadedRun", "RunError", "Trajectory", "load_run", "write_reevaluation"]
+__all__ = [
+    "Elite",
+    "LoadedRun",
+    "RunError",
+    "Trajectory",
+    "find_runs",
+    "load_metrics",
+    "load_repertoires",
+    "load_run",
+    "write_reevaluation",
+]
 
 
 class RunError(ValueError):
@@ -81,7 +91,94 @@ def brax_link_poses(state: Any) -> Any:
 
 def load_run(path: str | Path) -> LoadedRun:
     """The run in directory `path` (finished or interrupted); RunError if it is not one."""
-    return LoadedRun(Path(path))
+    path = Path(path)
+    if path.is_dir() and not (path / "config.toml").is_file():
+        inside = find_runs([path])  # RunError when there is none
+        some = ", ".join(str(p) for p in inside[:3]) + (", ..." if len(inside) > 3 else "")
+        raise RunError(
+            f"{path} holds {len(inside)} runs (a sweep or a folder of runs), not one: load one of "
+            f"them ({some}), or all with qdrl.load_metrics / qdrl.load_repertoires"
+        )
+    return LoadedRun(path)
+
+
+def find_runs(paths: Sequence[str | Path]) -> list[Path]:
+    """The run directories (those holding a config.toml) at or under each of `paths`.
+
+    A run directory is itself; a sweep (`qdrl run SPEC --seeds ...`) or a folder of
+    runs gives every run below it, in path order. RunError names the first path
+    that holds no run.
+    """
+    found: list[Path] = []
+    for given in paths:
+        root = Path(given)
+        if not root.is_dir():
+            raise RunError(f"{root}: no such directory; expected a run directory written by `qdrl run`")
+        if (root / "config.toml").is_file():
+            runs = [root]
+        else:
+            runs = sorted({p.parent for p in root.rglob("config.toml") if "checkpoints" not in p.parts})
+        if not runs:
+            raise RunError(
+                f"{root} holds no run: expected a directory written by `qdrl run` (with config.toml), "
+                "or a folder of them (e.g. a sweep's seed_<n>/)"
+            )
+        found.extend(r for r in runs if r not in found)
+    return found
+
+
+def _labels(run: LoadedRun) -> dict[str, Any]:
+    """The columns that say which run a row comes from."""
+    return {
+        "spec": run.name,
+        "algorithm": run.algorithm,
+        "task": run.task_name,
+        "seed": run.seed,
+        "run": str(run.path),
+    }
+
+
+def load_metrics(*paths: str | Path) -> pd.DataFrame:
+    """The metrics.csv of every run at or under `paths`, stacked into one DataFrame.
+
+    Columns `spec` (the experiment's name), `algorithm`, `task`, `seed` and `run`
+    (its directory) say where each row comes from, then the metrics; runs of
+    different algorithms have different metric columns (NaN where a run has none).
+
+        df = qdrl.load_metrics("runs/map_elites_arm", "runs/cvt_map_elites_arm")
+        df.groupby(["spec", "evaluations"]).qd_score.mean()
+    """
+    import pandas as pd
+
+    frames = []
+    for path in find_runs(list(paths)):
+        run = LoadedRun(path)
+        frame = run.metrics.copy()
+        for i, (key, value) in enumerate(_labels(run).items()):
+            frame.insert(i, key, value)
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def load_repertoires(*paths: str | Path) -> pd.DataFrame:
+    """The final repertoire (QD runs) or passive archive (RL, PBT and skill runs) of every
+    run at or under `paths`, one row per elite: `spec`, `algorithm`, `task`, `seed`,
+    `run`, then `cell`, `fitness`, `descriptor_*` and `centroid_*` (`LoadedRun.table`).
+
+    Reads repertoire.csv / archive.csv; a run without one (interrupted) is read from
+    its latest checkpoint.
+    """
+    import pandas as pd
+
+    frames = []
+    for path in find_runs(list(paths)):
+        run = LoadedRun(path)
+        csv_path = next((path / n for n in ("repertoire.csv", "archive.csv") if (path / n).is_file()), None)
+        frame = pd.read_csv(csv_path) if csv_path is not None else run.table
+        for i, (key, value) in enumerate(_labels(run).items()):
+            frame.insert(i, key, value)
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
 
 
 class LoadedRun:
@@ -128,12 +225,18 @@ class LoadedRun:
 
     @property
     def task_name(self) -> str:
-        """The task (QD runs) or environment (RL runs) of the run."""
-        for section in ("task", "env"):
+        """The task (QD and skill runs) or environment (RL runs) of the run."""
+        for section, key in (("task", "name"), ("env", "task"), ("env", "name")):
             table = self.config.get(section)
-            if isinstance(table, dict) and "name" in table:
-                return str(table["name"])
+            if isinstance(table, dict) and key in table:
+                return str(table[key])
         return "?"
+
+    @property
+    def name(self) -> str:
+        """The experiment's name (`experiment.name`: the spec's file stem by default)."""
+        experiment = self.config.get("experiment", {})
+        return str(experiment.get("name") or self.path.name)
 
     @property
     def run(self) -> Any:
@@ -188,6 +291,8 @@ class LoadedRun:
             rep = None
             if self.is_qd and npz.is_file():
                 rep = self._from_npz(npz)
+            elif not self.is_qd and (self.path / "archive.npz").is_file():
+                rep = self._archive_from_npz(self.path / "archive.npz")
             self._repertoire = jax.device_get(rep if rep is not None else self._from_checkpoint())
         return self._repertoire
 
@@ -217,6 +322,20 @@ class LoadedRun:
         ):
             raise RunError(f"{path}: expected the repertoire of the run in config.toml; its cells or shapes differ")
         return rep
+
+    def _archive_from_npz(self, path: Path) -> Any:
+        """The passive archive of an RL, PBT or skill run from its `archive.npz` (no genotypes)."""
+        from qdrl.qd.repertoires import passive_archive
+
+        with np.load(path) as f:
+            arrays = {k: f[k] for k in f.files}
+        if not {"fitnesses", "descriptors", "grid_shape", "low", "high"} <= set(arrays):
+            raise RunError(f"{path}: expected the export of a grid passive archive")
+        empty = passive_archive(
+            "grid", grid_shape=tuple(int(n) for n in arrays["grid_shape"]),
+            low=tuple(float(v) for v in arrays["low"]), high=tuple(float(v) for v in arrays["high"]),
+        )
+        return dataclasses.replace(empty, fitnesses=arrays["fitnesses"], descriptors=arrays["descriptors"])
 
     def _from_checkpoint(self) -> Any:
         latest = checkpoint.latest(self.path / "checkpoints")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -130,3 +131,25 @@ def test_hlo_profile_counts_loops_fusions_and_the_costliest_branch() -> None:
     assert prof["kernels_by_kind"] == {"dot": 1, "fusion:scatter": 1, "multiply": 3}
     # Bytes: fusion 32 + 8 + 8 (in) + 32 (out); multiply 3 x (64 in + 32 out); dot 64 + 32.
     assert prof["bytes"] == 80 + 3 * 96 + 96
+
+
+@pytest.mark.parametrize("script", ["map_elites_function.py", "diayn_skills.py", "pga_me_brax.py"])
+def test_example_runs_at_its_small_size(script: str, tmp_path: Path) -> None:
+    """Each example at the size its QDRL_EXAMPLE_SIZE=small gives (the brax one compiles brax
+    physics three times: start, chunk, replay)."""
+    env = {**os.environ, "QDRL_EXAMPLE_SIZE": "small"}
+    res = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / script), str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=900, env=env, cwd=tmp_path,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = res.stdout.strip().splitlines()
+    if script == "map_elites_function.py":
+        assert float(lines[-1].split("coverage")[1]) > 0.5
+    elif script == "diayn_skills.py":
+        assert "discriminator accuracy" in lines[0] and (tmp_path / "out" / "plots" / "skills.png").is_file()
+        assert int(lines[1].split("reached ")[1].split()[0]) >= 1
+    else:
+        assert lines[0].startswith("QD score") and "24 evaluations, 240 env steps" in lines[0]
+        assert "back foot contact" in lines[1] and lines[2].endswith(".html")
+        assert Path(lines[2].split("replay: ")[1]).stat().st_size > 5_000  # 10 frames of brax's viewer

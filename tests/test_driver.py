@@ -135,7 +135,8 @@ def test_resume_names_each_differing_key(tmp_path: Path, full: tuple[Path, Path,
     assert str(info.value).startswith(
         f"--resume: the spec differs from {out / 'config.toml'}: "
         "emitter.iso_sigma 0.01 -> 0.02, qd.num_iterations 8 -> 12; only qd.num_iterations or "
-        "train.total_env_steps (to extend the run) and [log] may change on resume"
+        "train.total_env_steps or cma_es.num_generations (to extend the run) and [log] may change "
+        "on resume"
     )
     with pytest.raises(ConfigError, match=r"--resume: expected a length of at least the 4 log points"):
         run_spec(spec, ["qd.num_iterations=4"], out, resume=True)
@@ -312,7 +313,8 @@ def test_an_unexpected_error_prints_one_line_and_logs_the_traceback(
     assert main(["run", str(spec), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     log = out / "error.log"
-    assert err == f"qdrl: error: RuntimeError: XLA ran out of memory (full traceback in {log})\n"
+    # The run had started (it says where it writes); the error is one line after it.
+    assert err == f"qdrl: writing to {out}\nqdrl: error: RuntimeError: XLA ran out of memory (full traceback in {log})\n"
     text = log.read_text()
     assert "Traceback (most recent call last)" in text and "broken_compile" in text
     assert "second line of detail" in text

@@ -163,6 +163,6 @@ def test_bad_spec_fails_fast_from_a_fresh_process(tmp_path: Path) -> None:
 def test_list_shows_specs_algorithms_and_tasks(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["list"]) == 0
     out = capsys.readouterr().out
-    assert "agents/default.toml" in out and "sac" in out and "td3" in out and "halfcheetah" in out
+    assert "\n  default " in out and "sac" in out and "td3" in out and "halfcheetah" in out
     assert "map_elites" in out and "halfcheetah_uni" in out and "arm" in out
     assert "  cma_improvement: CMA-ME's improvement emitter" in out and "cma_mae" in out

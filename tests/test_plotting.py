@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -112,3 +113,109 @@ def test_no_pyplot_figures_left_open(tmp_path: Path) -> None:
         plotting.plot_curves(run_rows(5), tmp_path)
         plotting.plot_comparison({"a": run_rows(5)}, "eval_return", "wall_s", tmp_path / "c.png")
     assert plt.get_fignums() == before
+
+
+# --- the researcher's figures: ticks, seeds, descriptor names, maze walls -------------
+
+
+def _extents(ax: object, fig: object) -> list[tuple[float, float]]:
+    """The horizontal pixel extent of each visible x tick label of `ax`, after drawing."""
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+    labels = [t for t in ax.get_xticklabels() if t.get_text() and t.get_visible()]  # type: ignore[attr-defined]
+    return sorted((b.x0, b.x1) for b in (t.get_window_extent(renderer) for t in labels))
+
+
+@pytest.mark.parametrize("top", [150_000.0, 3.2e6, 12.5, 1_000_000_000.0])
+def test_x_tick_labels_never_overlap(top: float) -> None:
+    fig = plotting._new_figure(2)  # the width of a panel of plot_curves
+    ax = fig.subplots(1, 2)[0]
+    xs = np.linspace(0.0, top, 40)
+    ax.plot(xs, np.sqrt(xs))
+    plotting._tidy_x(ax)
+    fig.canvas.draw()
+    extents = _extents(ax, fig)
+    assert 2 <= len(extents) <= 7
+    for (_, right), (left, _) in itertools.pairwise(extents):
+        assert right < left, extents
+
+
+def test_compact_tick_labels() -> None:
+    assert [plotting._compact(v) for v in (0.0, 12.5, 150_000.0, 2_500_000.0, -3000.0)] == [
+        "0", "12.5", "150k", "2.5M", "-3k"
+    ]
+
+
+def test_default_x_keys_leave_out_columns_that_are_zero_everywhere() -> None:
+    qd_function = [{"evaluations": 100 * i, "env_steps": 0, "wall_s": 0.1 * i} for i in range(1, 4)]
+    rl = [{"env_steps": 1000 * i, "wall_s": 0.1 * i} for i in range(1, 4)]
+    assert plotting.default_x_keys(qd_function) == ["evaluations", "wall_s"]
+    assert plotting.default_x_keys(rl) == ["env_steps", "wall_s"]
+
+
+def test_seeds_are_drawn_as_their_mean_and_a_band(tmp_path: Path) -> None:
+    seeds = [run_rows(10, scale=s) for s in (1.0, 2.0, 3.0)]
+    fig = plotting._new_figure(1)
+    ax = fig.subplots()
+    plotting._draw_comparison(ax, {"sac": seeds, "td3": [run_rows(10, scale=5.0)]}, "env_steps", "eval_return", 0.95)
+    mean_line, single_line = ax.lines
+    np.testing.assert_allclose(mean_line.get_ydata(), [2.0 * math.sqrt(i) for i in range(10)])
+    assert mean_line.get_label() == "sac (3 seeds)" and single_line.get_label() == "td3"
+    (band,) = ax.collections  # one band: the single run has none
+    lows = band.get_paths()[0].vertices[:, 1]
+    assert lows.min() <= 0.0 and lows.max() >= 3.0 * math.sqrt(9) - 1e-6
+    path = plotting.plot_comparison(
+        {"sac": seeds}, "eval_return", ["env_steps", "wall_s"], tmp_path / "seeds.png"
+    )
+    assert_png(path)
+    assert imread(path).shape[1] > 2 * imread(path).shape[0]  # two panels side by side
+
+
+def test_heatmap_axes_carry_the_descriptor_names(tmp_path: Path) -> None:
+    import types
+
+    fitnesses = np.full(16, -np.inf)
+    fitnesses[[1, 14]] = [1.0, 2.0]  # a 4 x 4 grid, read by duck typing
+    rep = types.SimpleNamespace(
+        fitnesses=fitnesses, descriptors=np.zeros((16, 2)), centroids=np.zeros((16, 2)),
+        grid_shape=(4, 4), low=(0.0, 0.0), high=(1.0, 1.0),
+    )
+    fig = plotting._new_figure(1)
+    ax = fig.subplots()
+    norm, colours = plotting._colour_scale([rep], None, None, "viridis")
+    plotting._draw_repertoire(ax, rep, 0.0, 1.0, (0, 1), norm, colours, ["back foot contact", "front foot contact"])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("back foot contact", "front foot contact")
+    with pytest.raises(ValueError, match=r"labels: expected 2 names"):
+        plotting.plot_repertoire(rep, tmp_path / "x.png", 0.0, 1.0, labels=["x"])
+    both = plotting.plot_repertoires({"a": rep, "b": rep}, tmp_path / "both.png", 0.0, 1.0, labels=["x", "y"])
+    assert_png(both)
+
+
+def test_tasks_name_their_descriptors() -> None:
+    from qdrl.envs.brax import FEET
+    from qdrl.tasks import Task, make_task
+    from qdrl.tasks.brax_qd import FEET_NAMES
+
+    assert make_task("arm", num_dofs=4).descriptor_names == ("end-effector x", "end-effector y")
+    plain = Task("t", make_task("arm").scoring_fn, (0.0, 0.0), (1.0, 1.0), 4, 0.0, 1.0, 0.0)
+    assert plain.descriptor_names == ("descriptor 0", "descriptor 1")  # the default
+    with pytest.raises(ValueError, match=r"t: expected 2 descriptor names, got \['x'\]"):
+        Task("t", plain.scoring_fn, (0.0, 0.0), (1.0, 1.0), 4, 0.0, 1.0, 0.0, descriptor_names=("x",))
+    assert {k: len(v) for k, v in FEET_NAMES.items()} == {k: len(v) for k, v in FEET.items()}
+    assert FEET_NAMES["halfcheetah"] == ("back foot contact", "front foot contact")
+
+
+def test_the_skills_plot_draws_the_maze_walls(tmp_path: Path) -> None:
+    from qdrl.envs.point_maze import QDAX_WALLS, PointMazeEnv
+
+    walls = plotting.env_walls(PointMazeEnv(episode_length=5))
+    np.testing.assert_allclose([[*a, *b, r] for a, b, r in walls], [[*a, *b, 0.0] for a, b in QDAX_WALLS])
+    assert plotting.env_walls(object()) == []
+    t = np.linspace(0.0, 1.0, 6)
+    traj = np.stack([np.stack([t * 0.5 - 0.9, t * 0.2 - 0.9], -1)] * 2, axis=1)  # (T, 2, 2), away from the walls
+    args = (traj, np.array([0, 1]), np.ones((6, 2)))
+    plain = plotting.plot_skills(*args, tmp_path / "plain.png", (-1.0, -1.0), (1.0, 1.0))
+    walled = plotting.plot_skills(*args, tmp_path / "walls.png", (-1.0, -1.0), (1.0, 1.0), walls=walls)
+    a, b = imread(plain)[..., :3], imread(walled)[..., :3]
+    assert a.shape == b.shape
+    dark = (b.max(axis=-1) < 0.35) & (a.min(axis=-1) > 0.9)  # wall pixels: grey where white was
+    assert dark.sum() > 500

@@ -209,7 +209,7 @@ def test_bad_directories_and_cells_get_one_line_errors(
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("not a run")
-    assert "not a qdrl run directory: expected config.toml" in _error(["reevaluate", str(foreign), "--samples", "2"], capsys)
+    assert "holds no run: expected a directory written by `qdrl run`" in _error(["reevaluate", str(foreign), "--samples", "2"], capsys)
     partial = tmp_path / "partial"
     partial.mkdir()
     shutil.copy(maze_dir / "config.toml", partial)
@@ -232,6 +232,11 @@ def test_an_rl_run_loads_without_genotypes(tmp_path: Path, capsys: pytest.Captur
     assert run.finished and run.algorithm == "sac" and run.task_name == "point"
     assert len(run.metrics) == 1 and run.metrics["env_steps"].iloc[0] == 200
     assert len(run.table) == run.summary["num_elites"] >= 1  # type: ignore[index]
+    # archive.npz (the whole passive archive) gives the same table as the checkpoint.
+    assert (out / "archive.csv").is_file() and (out / "archive.npz").is_file()
+    from_checkpoint = load_run(out)
+    from_checkpoint._repertoire = from_checkpoint._from_checkpoint()
+    assert from_checkpoint.table.equals(run.table)
     best = run.best()
     assert best.fitness == run.table["fitness"].max()
     with pytest.raises(RunError, match="passive archive stores no genotypes"):

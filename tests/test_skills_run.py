@@ -62,7 +62,12 @@ def test_tiny_run_fills_the_passive_archive(tmp_path: Path, algorithm: str) -> N
         assert 0.0 <= summary["gate_open"] <= 1.0
     assert (tmp_path / "plots" / "skills.png").stat().st_size > 0
     assert (tmp_path / "plots" / "archive.png").exists()
-    assert json.loads((tmp_path / "summary.json").read_text())["algorithm"] == algorithm
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written["algorithm"] == algorithm
+    # The passive archive is exported as QD runs export their repertoire.
+    assert written["descriptor_names"] == ["final x", "final y"]
+    archive = (tmp_path / "archive.csv").read_text().splitlines()
+    assert archive[0].startswith("cell,fitness,descriptor_0,descriptor_1") and len(archive) == 1 + summary["num_elites"]
 
 
 def test_every_skill_spec_is_a_known_algorithm_and_task() -> None:

@@ -20,6 +20,7 @@ NaN genotypes whose evaluations are rejected, and the metrics show it (coverage
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -85,6 +86,23 @@ def _check_some_finite(n: int, evaluation: Evaluation) -> None:
         )
 
 
+def check_evaluation_type(value: Any, where: str) -> Evaluation:
+    """`value` if it is an `Evaluation`; a TypeError saying what a scoring function must return
+    otherwise (raised where the scoring function is called, not deep in the loop)."""
+    if isinstance(value, Evaluation):
+        return value
+    got = f"a tuple of {len(value)}" if isinstance(value, tuple) else type(value).__name__
+    hint = (
+        " (a QDax scoring function returns (fitnesses, descriptors, extras): return "
+        "Evaluation(fitnesses, descriptors, extras, env_steps) instead)"
+        if isinstance(value, tuple) else ""
+    )
+    raise TypeError(
+        f"{where}: expected qdrl.qd.base.Evaluation(fitnesses (n,), descriptors (n, D), extras "
+        f"dict, env_steps int32), got {got}{hint}"
+    )
+
+
 def _evaluation(fitnesses: Fitness, descriptors: Descriptor) -> Evaluation:
     return Evaluation(
         fitnesses=jnp.asarray(fitnesses, jnp.float32),
@@ -147,6 +165,11 @@ class MapElites:
         `scoring_fn` may be None when every evaluation happens outside JAX
         (`init_values`, `ask`, `tell_values`).
         """
+        if scoring_fn is not None and not callable(scoring_fn):
+            raise TypeError(
+                f"scoring_fn: expected a function (genotypes, key) -> Evaluation, or None, got "
+                f"{type(scoring_fn).__name__}"
+            )
         self.scoring_fn = scoring_fn
         self.emitter = emitter
         self.empty_repertoire = repertoire
@@ -172,6 +195,7 @@ class MapElites:
         Raises ValueError (outside jit, before adding anything) when no evaluation has
         a finite fitness and a finite descriptor: the repertoire would stay empty.
         """
+        evaluation = check_evaluation_type(evaluation, "init_from_evaluation: evaluation")
         n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(
             n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size, self.num_objectives
@@ -203,7 +227,7 @@ class MapElites:
                 "this MapElites has no scoring function: evaluate outside and use "
                 "init_values / ask / tell_values"
             )
-        return self.scoring_fn(genotypes, key)
+        return check_evaluation_type(self.scoring_fn(genotypes, key), "scoring_fn returned")
 
     def ask(self, state: QDState) -> tuple[Genotype, QDState]:
         """Offspring to evaluate, and the state with its key moved on.
@@ -227,6 +251,7 @@ class MapElites:
         evaluation: Evaluation,
     ) -> tuple[QDState, dict[str, Array]]:
         """Offer evaluated offspring to the repertoire and update the emitter."""
+        evaluation = check_evaluation_type(evaluation, "tell: evaluation")
         n = _batch_size(genotypes, evaluation.fitnesses)
         _check_evaluation(
             n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size, self.num_objectives
@@ -271,8 +296,17 @@ class MapElites:
         The scalar 32-bit metrics leave each iteration as ONE float32 vector (integers
         by their bit pattern, so exactly) and are unpacked after the loop: one write
         into the stacked output per iteration instead of one per metric (on a GPU,
-        one kernel instead of six).
+        one kernel instead of six). `num_steps` sets the scan's length, so it must be
+        a Python int when jitted: `jax.jit(me.run, static_argnums=1)`.
         """
+        try:
+            length = operator.index(num_steps)
+        except Exception:
+            raise TypeError(
+                f"num_steps: expected a Python int (the scan's length), got {type(num_steps).__name__}"
+                " (a traced value?): jit me.run with the number of steps static, "
+                "jax.jit(me.run, static_argnums=1)"
+            ) from None
         layout: list[tuple[str, Any]] = []  # (name, dtype) of the packed metrics, in order
 
         def body(s: QDState, _: None) -> tuple[QDState, tuple[Array, dict[str, Array]]]:
@@ -280,7 +314,7 @@ class MapElites:
             packed, rest = _pack_scalars(metrics, layout)
             return s, (packed, rest)
 
-        state, (packed, rest) = jax.lax.scan(body, state, None, length=num_steps)
+        state, (packed, rest) = jax.lax.scan(body, state, None, length=length)
         return state, _unpack_scalars(packed, rest, layout)
 
     def _metrics(self, state: QDState, added: AddResult) -> dict[str, Array]:

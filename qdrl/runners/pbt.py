@@ -130,11 +130,7 @@ class PBTRun(OffPolicyRun):
     def finish(self, state: PBTState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:  # type: ignore[override]
         from qdrl import plotting
 
-        cfg = self.archive_cfg
-        plotting.plot_repertoire(
-            jax.device_get(state.archive), out_dir / "plots" / "archive.png", cfg.low, cfg.high,
-            title=f"{self.algorithm} on {self.task}: passive archive ({cfg.descriptor} descriptor)",
-        )
+        self.write_archive(state.archive, out_dir)
         members = {
             f"member {i}": [
                 {"member_env_steps": r["member_env_steps"], "eval_return": r[f"eval_return_m{i}"]}

@@ -439,6 +439,7 @@ class QDRun:
         plotting.plot_repertoire(
             rep, out_dir / "plots" / "repertoire.png", self._task.descriptor_low,
             self._task.descriptor_high, title=f"{self.algorithm} on {self.task}",
+            labels=self._task.descriptor_names,
         )
         return {"qd_offset": self._task.qd_offset, **self._reevaluate(rep, out_dir)}
 

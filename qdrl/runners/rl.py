@@ -152,14 +152,40 @@ class OffPolicyRun:
         row.update({k: scalar(v) for k, v in m.items()})
         return row
 
-    def finish(self, state: RLState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
+    @property
+    def archive_labels(self) -> tuple[str, ...]:
+        """The passive archive's descriptor names, for plots (e.g. "final x", "back foot contact")."""
+        from qdrl.tasks.brax_qd import FEET_NAMES
+
+        env_cfg, kind = self.sections["env"], self.archive_cfg.descriptor
+        size = len(self.archive_cfg.grid_shape)
+        if getattr(env_cfg, "state_descriptor", "xy") == "feet_contact":
+            from qdrl.envs.brax import robot_of
+
+            names = FEET_NAMES.get(robot_of(env_cfg.name), ())
+            names = tuple(f"{kind} {n}" for n in names)
+        else:
+            names = (f"{kind} x", f"{kind} y")
+        return names if len(names) == size else tuple(f"descriptor {i}" for i in range(size))
+
+    def write_archive(self, archive: CellRepertoire, out_dir: Path) -> None:
+        """The passive archive as QD runs write their repertoire: archive.npz (every cell),
+        archive.csv (one row per filled cell) and plots/archive.png."""
         from qdrl import plotting
+        from qdrl.qd.repertoires import export_npz, write_csv
 
         cfg = self.archive_cfg
+        archive = jax.device_get(archive)
+        export_npz(archive, out_dir / "archive.npz")
+        write_csv(archive, out_dir / "archive.csv")
         plotting.plot_repertoire(
-            jax.device_get(state.archive), out_dir / "plots" / "archive.png", cfg.low, cfg.high,
+            archive, out_dir / "plots" / "archive.png", cfg.low, cfg.high,
             title=f"{self.algorithm} on {self.task}: passive archive ({cfg.descriptor} descriptor)",
+            labels=self.archive_labels,
         )
+
+    def finish(self, state: RLState, rows: list[dict[str, float]], out_dir: Path) -> dict[str, Any]:
+        self.write_archive(state.archive, out_dir)
         return {"grad_steps": int(np.asarray(state.train.grad_steps))}
 
 

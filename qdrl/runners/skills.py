@@ -108,6 +108,7 @@ class SkillRun(OffPolicyRun):
         self.archive_cfg = archive_cfg
         self.skills_cfg = skills_cfg
         self.base_env = task.env
+        self.descriptor_names = task.descriptor_names
         if len(archive_cfg.grid_shape) != self.base_env.descriptor_size:
             raise ConfigError(
                 f"archive.grid_shape: expected {self.base_env.descriptor_size} entries (the state "
@@ -131,6 +132,11 @@ class SkillRun(OffPolicyRun):
         self._eval_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x5EED)
         self._chunk: Any = None
         self._last_eval: dict[str, Any] | None = None
+
+    @property
+    def archive_labels(self) -> tuple[str, ...]:
+        """The task's descriptor names (e.g. "final x", "back foot contact")."""
+        return tuple(self.descriptor_names)
 
     def _model_metric_names(self) -> tuple[str, ...]:
         if isinstance(self.skills_cfg, DIAYNConfig):
@@ -215,6 +221,8 @@ class SkillRun(OffPolicyRun):
             archive=jax.device_get(state.archive),
             title=f"{self.algorithm} on {self.task}: skills and passive archive",
             trajectories_are_positions=cfg.descriptor == "final",
+            walls=plotting.env_walls(self.base_env),
+            labels=self.archive_labels,
         )
         return out
 

@@ -24,6 +24,10 @@ def _safe_sqrt(x: Array) -> Array:
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
 
 
+# The descriptor: where the arm's end effector ends, x and y scaled to [0, 1].
+ARM_DESCRIPTOR_NAMES = ("end-effector x", "end-effector y")
+
+
 def arm_evaluate(genotype: Array) -> tuple[Array, Array]:
     """Fitness () and descriptor (2,) of one arm (QDax `arm`).
 
@@ -58,6 +62,7 @@ def arm(num_dofs: PositiveInt = 100) -> Task:
         gradient_scoring_fn=batched_scoring_fn(arm_evaluate, num_dofs, gradients=True),
         descriptor_low=(0.0, 0.0),
         descriptor_high=(1.0, 1.0),
+        descriptor_names=ARM_DESCRIPTOR_NAMES,
         genotype_size=num_dofs,
         genotype_low=0.0,
         genotype_high=1.0,
@@ -109,6 +114,7 @@ def noisy_arm(
         scoring_fn=scoring_fn,
         descriptor_low=(0.0, 0.0),
         descriptor_high=(1.0, 1.0),
+        descriptor_names=ARM_DESCRIPTOR_NAMES,
         genotype_size=num_dofs,
         genotype_low=0.0,
         genotype_high=1.0,

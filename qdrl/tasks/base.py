@@ -37,6 +37,8 @@ class Task:
     `gradient_scoring_fn`, for differentiable tasks, is `scoring_fn` whose
     evaluations also carry the fitness gradient and descriptor Jacobian
     (`qdrl.qd.dqd`); runs that do not ask for it differentiate nothing.
+    `descriptor_names` label the descriptor dimensions on plots (e.g. "back foot
+    contact"); by default "descriptor 0", "descriptor 1", ...
     """
 
     name: str
@@ -58,6 +60,7 @@ class Task:
     # objective maximised, and hypervolumes are measured from `reference_point`.
     num_objectives: int = 1
     reference_point: tuple[float, ...] | None = None
+    descriptor_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
@@ -71,6 +74,14 @@ class Task:
             raise ValueError(
                 f"{self.name}: a task of {self.num_objectives} objectives needs a reference "
                 f"point of {self.num_objectives} values, got {self.reference_point}"
+            )
+        if not self.descriptor_names:
+            default = tuple(f"descriptor {i}" for i in range(len(self.descriptor_low)))
+            object.__setattr__(self, "descriptor_names", default)
+        if len(self.descriptor_names) != len(self.descriptor_low):
+            raise ValueError(
+                f"{self.name}: expected {len(self.descriptor_low)} descriptor names, got "
+                f"{list(self.descriptor_names)}"
             )
         if not self.genotype_low < self.genotype_high:
             raise ValueError(

@@ -88,6 +88,19 @@ MAZE_MAX_DISTANCE = max(
 DEFAULT_BACKEND: Backend = "spring"
 
 
+# Plot labels of the feet-contact descriptor, in the order of `qdrl.envs.brax.FEET`
+# (the ant's lower legs 2, 4, 6, 8 belong to its front-left, front-right, back-left and
+# back-right legs in brax's ant.xml).
+FEET_NAMES: dict[str, tuple[str, ...]] = {
+    "ant": tuple(f"{leg} foot contact" for leg in ("front-left", "front-right", "back-left", "back-right")),
+    "halfcheetah": ("back foot contact", "front foot contact"),
+    "walker2d": ("right foot contact", "left foot contact"),
+    "hopper": ("foot contact",),
+    "humanoid": ("right foot contact", "left foot contact"),
+}
+FINAL_XY_NAMES = ("final x", "final y")
+
+
 def brax_policy_task(
     name: str,
     env: BraxEnv,
@@ -97,6 +110,7 @@ def brax_policy_task(
     qd_offset: float,
     policy_hidden: Sequence[int] = (64, 64),
     eval_batch: int = DEFAULT_EVAL_BATCH,
+    descriptor_names: Sequence[str] = (),
 ) -> Task:
     """A `Task` whose genotypes are policies acting in `env` for one episode each.
 
@@ -106,7 +120,7 @@ def brax_policy_task(
     """
     return policy_task(
         name, env, descriptor, descriptor_low, descriptor_high, qd_offset, policy_hidden,
-        eval_batch=eval_batch,
+        eval_batch=eval_batch, descriptor_names=descriptor_names,
     )
 
 
@@ -125,6 +139,7 @@ def _uni(
         -REWARD_OFFSETS[task] * episode_length,
         policy_hidden,
         eval_batch,
+        FEET_NAMES[robot],
     )
 
 
@@ -135,7 +150,7 @@ def _omni(
     env = BraxEnv(robot, backend, episode_length, state_descriptor="xy", reward="no_forward")
     return brax_policy_task(
         task, env, "final", *OMNI_BOUNDS, -REWARD_OFFSETS[task] * episode_length, policy_hidden,
-        eval_batch,
+        eval_batch, FINAL_XY_NAMES,
     )
 
 
@@ -261,6 +276,7 @@ def ant_trap(
         -REWARD_OFFSETS["ant_trap"] * episode_length,
         policy_hidden,
         eval_batch,
+        FINAL_XY_NAMES,
     )
 
 
@@ -286,6 +302,7 @@ def ant_maze(
         -MAZE_MAX_DISTANCE * episode_length,
         policy_hidden,
         eval_batch,
+        FINAL_XY_NAMES,
     )
 
 

@@ -125,6 +125,7 @@ def archimedean_spiral(
         scoring_fn=batched_scoring_fn(evaluate, 1),
         descriptor_low=low,
         descriptor_high=high,
+        descriptor_names=("x", "y") if descriptor == "euclidean" else ("arc length",),
         genotype_size=1,
         genotype_low=0.0,
         genotype_high=genotype_high,

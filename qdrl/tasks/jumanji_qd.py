@@ -28,6 +28,7 @@ def jumanji_task(
     max_fitness: float | None = None,
     name: str | None = None,
     eval_batch: int = DEFAULT_EVAL_BATCH,
+    descriptor_names: Sequence[str] = (),
 ) -> Task:
     """A QD task of MLP policies on a wrapped jumanji env: fitness = episode return.
 
@@ -40,6 +41,7 @@ def jumanji_task(
       max_fitness: the best return, when known.
       name: the task's name (default: the env's).
       eval_batch: episodes rolled out together (`qdrl.tasks.policy.policy_scoring_fn`).
+      descriptor_names: plot labels of the descriptor dimensions.
     """
     return policy_task(
         env.name if name is None else name,
@@ -52,6 +54,7 @@ def jumanji_task(
         max_fitness=max_fitness,
         clip_descriptors=False,
         eval_batch=eval_batch,
+        descriptor_names=descriptor_names,
     )
 
 
@@ -90,4 +93,5 @@ def snake(
         qd_offset=0.0,
         name="snake",
         eval_batch=eval_batch,
+        descriptor_names=("mean head row", "mean head column"),
     )

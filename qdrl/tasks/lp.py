@@ -67,6 +67,7 @@ def _lp_task(name: str, fitness: Callable[[Array], Array], num_dims: int) -> Tas
         gradient_scoring_fn=batched_scoring_fn(evaluate, num_dims, gradients=True),
         descriptor_low=(-box, -box),
         descriptor_high=(box, box),
+        descriptor_names=("projection of the first half", "projection of the second half"),
         genotype_size=num_dims,
         genotype_low=-math.inf,  # unbounded, as in the papers: no emitter clips
         genotype_high=math.inf,

@@ -39,4 +39,5 @@ def point_maze(
         policy_hidden=policy_hidden,
         clip_descriptors=False,
         eval_batch=eval_batch,
+        descriptor_names=("final x", "final y"),
     )

@@ -210,6 +210,7 @@ def policy_task(
     eval_batch: int | None = DEFAULT_EVAL_BATCH,
     objectives: RecordFn | None = None,
     reference_point: Sequence[float] | None = None,
+    descriptor_names: Sequence[str] = (),
 ) -> Task:
     """A `Task` whose genotypes are MLP policies acting in `env` for one episode each.
 
@@ -268,4 +269,5 @@ def policy_task(
         episode_descriptor=descriptor,
         num_objectives=1 if objectives is None else len(reference_point or ()),
         reference_point=None if reference_point is None else tuple(float(v) for v in reference_point),
+        descriptor_names=tuple(descriptor_names),
     )

@@ -1,0 +1,305 @@
+"""`qdrl report DIR...`: several runs and sweeps compared in figures and tables.
+
+    qdrl run map_elites_arm --seeds 0-4
+    qdrl run cvt_map_elites_arm --seeds 0-4
+    qdrl report runs/map_elites_arm runs/cvt_map_elites_arm --out report/arm
+
+Runs are grouped by task (runs of different tasks are never drawn together) and,
+within a task, by spec: the runs of one sweep (`seed_<n>/`) or of one run
+directory are the seeds of one curve. For each metric the report draws the mean
+over seeds and its 95% percentile bootstrap confidence band (`qdrl.stats`)
+against the run's cost, evaluations for QD runs (environment steps when the
+runs compared do not all count evaluations, or when an evaluation costs
+environment steps for some and not others) and wall time; a column that is zero
+everywhere (the env steps of a function task) is never an axis. It writes:
+
+- `<task>/<metric>.png`: one figure per metric, one panel per x axis;
+- `<task>/repertoires.png`: each spec's final repertoire (its lowest seed) side by
+  side, on one colour scale, axes named after the task's descriptors;
+- `final.csv`: the final value of every metric, per task and spec: seeds, mean,
+  std, min, max, and the interquartile mean (IQM) with its bootstrap interval, as
+  rliable recommends for RL returns (Agarwal et al. 2021);
+- `report.md`: the headline metrics' table (mean ± std, IQM) and the figures.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import re
+import types
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qdrl import plotting, stats
+from qdrl.runs import LoadedRun, RunError, find_runs
+
+__all__ = ["HEADLINE_METRICS", "Group", "collect", "report"]
+
+# Shown in report.md when the runs have them, in this order; final.csv has every metric.
+HEADLINE_METRICS = (
+    "eval_return",
+    "qd_score",
+    "normalized_qd_score",
+    "coverage",
+    "max_fitness",
+    "mean_fitness",
+    "num_elites",
+)
+# The columns that measure cost, not progress; never a metric of their own.
+COST_KEYS = frozenset({*plotting.COUNTER_KEYS, *plotting.X_KEYS})
+
+
+@dataclasses.dataclass
+class Group:
+    """The runs of one task, by label (a spec's sweep or run directory), seeds in order."""
+
+    task: str
+    runs: dict[str, list[LoadedRun]]
+
+
+def _label(run: LoadedRun) -> str:
+    """A run's label: its sweep's directory name for a seed of a sweep, else its own."""
+    path = run.path.resolve()
+    return path.parent.name if re.fullmatch(r"seed_\d+", path.name) else path.name
+
+
+def collect(paths: Sequence[str | Path]) -> list[Group]:
+    """The runs at or under `paths`, grouped by task then label; RunError names a path
+    that holds no run, or a set of paths whose runs logged no metrics."""
+    groups: dict[str, dict[str, list[LoadedRun]]] = {}
+    for path in find_runs(paths):
+        run = LoadedRun(path)
+        if run.metrics.empty:
+            continue
+        groups.setdefault(run.task_name, {}).setdefault(_label(run), []).append(run)
+    if not groups:
+        raise RunError(
+            f"{', '.join(str(p) for p in paths)}: the runs there logged no metrics yet; expected "
+            "runs with at least one row in metrics.csv"
+        )
+    return [
+        Group(task, {label: sorted(runs, key=lambda r: r.seed) for label, runs in sorted(by_label.items())})
+        for task, by_label in sorted(groups.items())
+    ]
+
+
+def _rows(run: LoadedRun) -> list[dict[str, Any]]:
+    return list(run.metrics.to_dict("records"))
+
+
+def _numeric(run: LoadedRun, key: str) -> bool:
+    column = run.metrics.get(key)
+    return column is not None and column.dtype.kind in "biuf" and bool(np.isfinite(column).any())
+
+
+def _nonzero(run: LoadedRun, key: str) -> bool:
+    column = run.metrics.get(key)
+    return column is not None and bool((np.nan_to_num(column.to_numpy(dtype=float)) != 0).any())
+
+
+def metrics_of(group: Group) -> list[str]:
+    """The metric columns of a group's runs, in first-seen order (costs and counters left out)."""
+    keys: dict[str, None] = {}
+    for runs in group.runs.values():
+        for run in runs:
+            for key in run.metrics.columns:
+                if key not in COST_KEYS and key not in keys and _numeric(run, key):
+                    keys[key] = None
+    return list(keys)
+
+
+def x_keys_for(runs: Sequence[LoadedRun]) -> list[str]:
+    """The x axes of a figure of `runs`: the first cost that every run counts with a non-zero
+    value (evaluations, then env steps), then wall time."""
+    keys = [x for x in ("evaluations", "env_steps") if all(_nonzero(r, x) for r in runs)][:1]
+    return [*keys, "wall_s"]
+
+
+def _final(runs: Sequence[LoadedRun], key: str) -> np.ndarray:
+    """Each run's last finite value of `key` (NaN where it has none)."""
+    values = []
+    for run in runs:
+        column = run.metrics.get(key)
+        finite = column.to_numpy(dtype=float) if column is not None else np.zeros(0)
+        finite = finite[np.isfinite(finite)]
+        values.append(float(finite[-1]) if finite.size else math.nan)
+    return np.asarray(values, dtype=np.float64)
+
+
+def final_values(group: Group, key: str, resamples: int = 2000) -> dict[str, dict[str, float]]:
+    """Per label: the final value of `key` over seeds (seeds, mean, std, min, max, iqm and its
+    95% bootstrap interval); labels whose runs lack the metric are left out."""
+    out = {}
+    for label, runs in group.runs.items():
+        values = _final(runs, key)
+        values = values[np.isfinite(values)]
+        if not values.size:
+            continue
+        low, high = stats.bootstrap_ci(values, "iqm", resamples=resamples)
+        out[label] = {
+            "seeds": int(values.size),
+            "mean": float(values.mean()),
+            "std": float(values.std(ddof=1)) if values.size > 1 else 0.0,
+            "min": float(values.min()),
+            "max": float(values.max()),
+            "iqm": float(stats.iqm(values)),
+            "iqm_low": float(low),
+            "iqm_high": float(high),
+        }
+    return out
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "task"
+
+
+def _repertoire_of(run: LoadedRun) -> tuple[Any, list[float], list[float], list[str] | None] | None:
+    """A run's final repertoire (duck-typed for plotting) with its descriptor bounds and names,
+    read from repertoire.npz / archive.npz and summary.json; None when the run has neither."""
+    npz = next((run.path / n for n in ("repertoire.npz", "archive.npz") if (run.path / n).is_file()), None)
+    summary = run.summary or {}
+    if npz is None:
+        return None
+    with np.load(npz) as f:
+        arrays = {k: f[k] for k in f.files if not k.startswith("genotypes")}
+    rep = types.SimpleNamespace(
+        fitnesses=arrays["fitnesses"],
+        descriptors=arrays["descriptors"],
+        centroids=arrays.get("centroids"),
+        grid_shape=tuple(int(n) for n in arrays["grid_shape"]) if "grid_shape" in arrays else None,
+        low=tuple(float(v) for v in arrays["low"]) if "low" in arrays else None,
+        high=tuple(float(v) for v in arrays["high"]) if "high" in arrays else None,
+    )
+    low = summary.get("descriptor_low") or (list(rep.low) if rep.low is not None else None)
+    high = summary.get("descriptor_high") or (list(rep.high) if rep.high is not None else None)
+    if low is None or high is None:
+        if not run.is_qd:
+            return None
+        task = run.qd_task  # an older run: its bounds from the task, rebuilt
+        low, high = list(task.descriptor_low), list(task.descriptor_high)
+        summary = {**summary, "descriptor_names": list(task.descriptor_names)}
+    names = summary.get("descriptor_names")
+    return rep, low, high, names if names and len(names) == len(low) else None
+
+
+def _decimals(std: float, value: float) -> int:
+    """Decimals that show two significant digits of `std` (of `value` when std is 0)."""
+    scale = std if std > 0 and math.isfinite(std) else abs(value)
+    if scale == 0 or not math.isfinite(scale):
+        return 0
+    return int(min(6, max(0, 1 - math.floor(math.log10(scale)))))
+
+
+def _fmt(x: float, decimals: int) -> str:
+    return f"{x:,.{decimals}f}" if math.isfinite(x) else "nan"
+
+
+def _cell(value: Mapping[str, float]) -> str:
+    """`mean ± std (IQM iqm)`, rounded to the std's second significant digit."""
+    d = _decimals(value["std"], value["mean"])
+    return f"{_fmt(value['mean'], d)} ± {_fmt(value['std'], d)} (IQM {_fmt(value['iqm'], d)})"
+
+
+def report(
+    paths: Sequence[str | Path],
+    out_dir: str | Path = "report",
+    confidence: float = 0.95,
+    resamples: int = 2000,
+) -> dict[str, Any]:
+    """Writes the report of the runs at or under `paths` into `out_dir` (see the module
+    docstring); returns {"out", "groups": {task: {"labels", "figures", "repertoires"}},
+    "table", "csv"}. RunError names a path that holds no run."""
+    groups = collect(paths)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result: dict[str, Any] = {"out": str(out), "groups": {}}
+    csv_rows: list[dict[str, Any]] = []
+    md = ["# Report", "", "Runs: " + ", ".join(f"`{p}`" for p in paths), ""]
+    md += [
+        f"Curves: mean over seeds, band: {confidence:.0%} percentile bootstrap interval over seeds "
+        f"({resamples} resamples). Final values: mean ± std over seeds; IQM: interquartile mean "
+        "(Agarwal et al. 2021).",
+        "",
+    ]
+    for group in groups:
+        task_dir = out / _slug(group.task)
+        figures: list[dict[str, Any]] = []
+        for key in metrics_of(group):
+            members = {
+                label: [_rows(r) for r in runs if _numeric(r, key)]
+                for label, runs in group.runs.items()
+            }
+            members = {label: rows for label, rows in members.items() if rows}
+            with_key = [r for runs in group.runs.values() for r in runs if _numeric(r, key)]
+            x_keys = x_keys_for(with_key)
+            path = plotting.plot_comparison(
+                members, key, x_keys, task_dir / f"{_slug(key)}.png",
+                title=f"{group.task}: {key}", confidence=confidence,
+            )
+            figures.append({"metric": key, "path": str(path), "x": x_keys})
+            for label, values in final_values(group, key, resamples).items():
+                csv_rows.append({"task": group.task, "spec": label, "metric": key, **values})
+        repertoires, low, high, names = {}, None, None, None
+        for label, runs in group.runs.items():
+            found = _repertoire_of(runs[0])
+            if found is not None:
+                rep, low, high, run_names = found
+                names = names or run_names
+                repertoires[f"{label} (seed {runs[0].seed})"] = rep
+        rep_path = None
+        if repertoires and low is not None and high is not None:
+            rep_path = plotting.plot_repertoires(
+                repertoires, task_dir / "repertoires.png", low, high,
+                title=f"{group.task}: final repertoires", labels=names,
+            )
+        result["groups"][group.task] = {
+            "labels": {label: [r.seed for r in runs] for label, runs in group.runs.items()},
+            "figures": figures,
+            "repertoires": str(rep_path) if rep_path else None,
+        }
+        md += _task_section(group, [r for r in csv_rows if r["task"] == group.task], figures, rep_path, out)
+
+    csv_path = out / "final.csv"
+    fields = ["task", "spec", "metric", "seeds", "mean", "std", "min", "max", "iqm", "iqm_low", "iqm_high"]
+    with csv_path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(csv_rows)
+    md_path = out / "report.md"
+    md_path.write_text("\n".join(md) + "\n")
+    result.update({"table": str(md_path), "csv": str(csv_path)})
+    (out / "report.json").write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
+def _task_section(
+    group: Group, rows: list[dict[str, Any]], figures: list[dict[str, Any]], rep_path: Path | None, out: Path
+) -> list[str]:
+    """report.md's section of one task: the headline table, then the figures."""
+    lines = [f"## {group.task}", ""]
+    seeds = {label: ", ".join(str(r.seed) for r in runs) for label, runs in group.runs.items()}
+    metrics = [m for m in HEADLINE_METRICS if any(r["metric"] == m for r in rows)]
+    if not metrics:  # no standard metric: the group's first few
+        metrics = list(dict.fromkeys(r["metric"] for r in rows))[:4]
+    lines.append("| spec | seeds | " + " | ".join(metrics) + " |")
+    lines.append("|---|---|" + "---|" * len(metrics))
+    for label in group.runs:
+        cells = []
+        for metric in metrics:
+            value = next((r for r in rows if r["spec"] == label and r["metric"] == metric), None)
+            cells.append("" if value is None else _cell(value))
+        lines.append(f"| {label} | {seeds[label]} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for figure in figures:
+        lines.append(f"![{figure['metric']}]({Path(figure['path']).relative_to(out).as_posix()})")
+    if rep_path is not None:
+        lines.append(f"![repertoires]({rep_path.relative_to(out).as_posix()})")
+    lines.append("")
+    return lines
+

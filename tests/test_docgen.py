@@ -1,0 +1,61 @@
+"""The documentation's generated tables: built from the code, and every marker in docs/ resolves."""
+
+from __future__ import annotations
+
+import importlib
+import re
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+from qdrl import docgen
+from qdrl.off_policy import TrainConfig
+from qdrl.runners.qd import PGSection, RepertoireConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+MARKER = re.compile(r"<!-- keys (\S+):(\S+) (\S+) -->")
+
+
+def test_a_key_table_gives_each_key_its_default_what_it_accepts_and_its_comment() -> None:
+    table = docgen.keys_table(RepertoireConfig, "repertoire").splitlines()
+    assert table[0] == "| key | default | accepts | meaning |"
+    assert "| `repertoire.kind` | `\"grid\"` | one of 'grid', 'cvt' | regular grid (direct indexing) or CVT |" in table
+    assert "| `repertoire.grid_shape` | `[32, 32]` | a list of positive integers |" in table[3]
+    assert len(table) == 2 + 5
+    train = docgen.keys_table(TrainConfig, "train")
+    assert "| `train.learning_starts` | `10000` | an integer >= 0 |" in train
+
+
+def test_comments_come_from_the_class_that_declares_the_field() -> None:
+    comments = docgen.field_comments(PGSection)  # a subclass of the emitter's PGConfig
+    assert comments["proportion_mutation_ga"].startswith("Share of `emitter.batch_size` made by the GA")
+    assert comments["tau"] == "Polyak rate of the target networks."  # the comment block above, in PGConfig
+
+
+def test_task_and_spec_tables() -> None:
+    tasks = docgen.tasks_table(["arm", "sphere"]).splitlines()
+    assert len(tasks) == 4 and tasks[2].startswith("| `arm` | Planar arm")
+    assert "end-effector x, end-effector y in [0, 1] × [0, 1] | -0.5 | `num_dofs=100` |" in tasks[2]
+    specs = docgen.specs_table(["default"]).splitlines()
+    assert specs[2].startswith("| `default` | The README's one-minute demo")
+
+
+def test_every_keys_marker_of_the_docs_names_a_config_dataclass() -> None:
+    markers = [m.groups() for page in (ROOT / "docs").rglob("*.md") for m in MARKER.finditer(page.read_text())]
+    assert len(markers) >= 18
+    for module, name, section in markers:
+        cls = getattr(importlib.import_module(module), name)
+        assert docgen.keys_table(cls, section).count(f"`{section}.") >= 1, (module, name)
+
+
+def test_the_task_example_of_the_docs_runs() -> None:
+    page = (ROOT / "docs" / "extending.md").read_text()
+    (code,) = [c for c in re.findall(r"```python\n(.*?)```", page, flags=re.S) if "def ring" in c]
+    namespace: dict = {}
+    exec(code, namespace)
+    task = namespace["ring"](4)
+    x = jnp.asarray([[1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5, 0.5]])
+    evaluation = task.scoring_fn(x, jax.random.PRNGKey(0))
+    assert evaluation.fitnesses.tolist() == [0.0, 0.0] and task.descriptor_names == ("x_0", "x_1")
+    assert float(task.qd_offset) < -1.0
