@@ -116,6 +116,7 @@ def run_episodes(
     num_steps: int | None = None,
     start_key: PRNGKey | None = None,
     record: RecordFn | None = None,
+    start_state: EnvState | None = None,
 ) -> Episodes:
     """Roll out one episode per environment from fresh resets, masking steps after the end.
 
@@ -123,11 +124,15 @@ def run_episodes(
     `start_key`, every environment starts from the one initial state that key
     resets to (QDax's deterministic evaluation of policies); otherwise each starts
     from its own random initial state. With `record`, `Episodes.recorded` stacks what
-    it keeps of the batch's state after each step (see `unroll_recorded`).
+    it keeps of the batch's state after each step (see `unroll_recorded`). With
+    `start_state` (one unbatched state, e.g. `fixed_start_state`), every environment
+    starts from it.
     """
     num_steps = env.episode_length if num_steps is None else num_steps
     reset_key, run_key = jax.random.split(key)
-    if start_key is None:
+    if start_state is not None:
+        state = jax.tree.map(lambda x: jnp.broadcast_to(x, (num_envs, *jnp.shape(x))), start_state)
+    elif start_key is None:
         state = reset_batch(env, reset_key, num_envs)
     else:
         state = jax.vmap(env.reset)(jnp.broadcast_to(start_key, (num_envs, *start_key.shape)))
@@ -146,3 +151,15 @@ def run_episodes(
         lengths[:, None], 1
     )
     return Episodes(returns, lengths, final_desc, mean_desc, tr, mask, recorded)
+
+
+def fixed_start_state(env: Env, start_key: PRNGKey) -> EnvState:
+    """The state `env` resets to from `start_key`, computed now by its own small compiled
+    program (call it outside any jit/scan trace), as host (NumPy) arrays.
+
+    Evaluations from one fixed start (QDax's deterministic scoring) broadcast it to
+    the batch instead of resetting every environment inside the evaluation: the
+    evaluation's program holds no reset (a third of a brax task's program), and
+    every batch size starts from the same bits.
+    """
+    return jax.device_get(jax.jit(env.reset)(start_key))

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from qdrl import nets
 from qdrl.envs.base import Env
 from qdrl.qd.base import Evaluation, ScoringFn
-from qdrl.rollout import Episodes, RecordFn, run_episodes
+from qdrl.rollout import Episodes, RecordFn, fixed_start_state, run_episodes
 from qdrl.tasks.base import Task
 from qdrl.types import Genotype, Params, PRNGKey
 
@@ -107,7 +107,9 @@ def policy_scoring_fn(
         raise ValueError(f"descriptor: expected 'final' or 'mean', got {descriptor!r}")
     if eval_batch is not None and eval_batch < 1:
         raise ValueError(f"eval_batch: expected a positive integer or None, got {eval_batch}")
-    start = jax.random.PRNGKey(0) if fixed_start else None
+    # The one start state of every evaluation (QDax's deterministic scoring), computed now:
+    # evaluation programs broadcast it instead of resetting (see `fixed_start_state`).
+    start = fixed_start_state(env, jax.random.PRNGKey(0)) if fixed_start else None
     recorder: RecordFn | None = record
     if objectives is not None:
         user_record, objective_fn = record, objectives
@@ -121,7 +123,7 @@ def policy_scoring_fn(
         def policy(obs: jax.Array, _: PRNGKey) -> jax.Array:
             return jax.vmap(network.apply)(genotypes, obs)
 
-        return run_episodes(env, policy, key, n, num_steps, start_key=start, record=recorder)
+        return run_episodes(env, policy, key, n, num_steps, record=recorder, start_state=start)
 
     def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
         n = jax.tree.leaves(genotypes)[0].shape[0]
