@@ -30,6 +30,7 @@ import numpy as np
 from qdrl import checkpoint, compile_cache, interrupt, loggers, specs
 from qdrl.config import (
     ConfigError,
+    NonNegativeInt,
     OneOf,
     PositiveInt,
     Range,
@@ -60,9 +61,19 @@ class ExperimentConfig:
     algorithm: AlgorithmName  # a name from `qdrl list`
     seed: Seed = 0  # seeds every random choice of the run
     name: str = ""  # a label for plots and summaries; default: the spec file's stem
+    # Devices the run spreads its batch over (qdrl.placement); 0: every visible device
+    # (of every process under jax.distributed). Batch sizes must divide by it.
+    devices: NonNegativeInt = 0
 
     def check(self) -> None:
         check_fields(self, "experiment")
+
+    @property
+    def num_devices(self) -> int:
+        """`devices` resolved against the visible devices; ConfigError when too many are asked for."""
+        from qdrl.placement import resolve_devices
+
+        return resolve_devices(self.devices)
 
 
 @dataclasses.dataclass(frozen=True)

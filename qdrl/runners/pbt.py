@@ -260,7 +260,7 @@ def parse_me_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str
     me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
     sections = parse_qd(
         spec, exp, default_kind="cvt", eval_batch=me_cfg.ga_batch_size + me_cfg.population_size,
-        with_emitter=False,
+        with_emitter=False, batch_where="me_pbt.ga_batch_size (+ me_pbt.population_size)",
     )
     config_cls, _ = AGENTS[agent_name]
     agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
