@@ -167,12 +167,12 @@ def shard_scoring(scoring_fn: ScoringFn, placement: Placement) -> ScoringFn:
         ev = scoring_fn(genotypes, key)
         return ev._replace(env_steps=jnp.reshape(jnp.asarray(ev.env_steps, jnp.int32), (1,)))
 
-    def specs(ev: Evaluation) -> Evaluation:
+    def specs(ev: Evaluation) -> Any:
         extras = {
             k: jax.tree.map(lambda _, t=k in TIME_MAJOR_EXTRAS: P(None, BATCH_AXIS) if t else P(BATCH_AXIS), v)
             for k, v in ev.extras.items()
         }
-        return Evaluation(P(BATCH_AXIS), P(BATCH_AXIS), extras, P(BATCH_AXIS))
+        return Evaluation(P(BATCH_AXIS), P(BATCH_AXIS), extras, P(BATCH_AXIS))  # type: ignore[arg-type]
 
     sharded = placement.map_batch(local, specs)
 
