@@ -14,7 +14,8 @@ from qdrl.config import ConfigError, OneOf, PositiveInt, build
 from qdrl.envs import env_names, make
 from qdrl.envs.brax import STATE_DESCRIPTORS, Backend
 from qdrl.experiment import ExperimentConfig, Sections, register, scalar
-from qdrl.off_policy import TrainConfig, TrainState, make_trainer
+from qdrl.off_policy import STATE_AXES, TrainConfig, TrainState, make_trainer
+from qdrl.placement import check_divisible, make_placement
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
 
@@ -65,12 +66,20 @@ def parse_off_policy(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections
     from qdrl.agents import AGENTS
 
     config_cls, _ = AGENTS[exp.algorithm]
+    train = build(TrainConfig, spec.get("train", {}), "train")
+    check_train_devices(train, exp.num_devices)
     return {
         "env": build(EnvConfig, spec.get("env", {}), "env"),
         "agent": build(config_cls, spec.get("agent", {}), "agent"),
-        "train": build(TrainConfig, spec.get("train", {}), "train"),
+        "train": train,
         "archive": build(ArchiveConfig, spec.get("archive", {}), "archive"),
     }
+
+
+def check_train_devices(train: TrainConfig, devices: int) -> None:
+    """ConfigError unless `[train]`'s environments and gradient batch split evenly over `devices`."""
+    check_divisible(train.num_envs, devices, "train.num_envs")
+    check_divisible(train.batch_size, devices, "train.batch_size")
 
 
 class RLState(NamedTuple):
@@ -110,7 +119,8 @@ class OffPolicyRun:
                 f"archive.grid_shape: expected {self.env.descriptor_size} entries (the state "
                 f"descriptor size of {env_cfg.name!r}), got {list(archive_cfg.grid_shape)}"
             )
-        self.trainer = make_trainer(self.env, self.agent, train_cfg)
+        self.placement = make_placement(exp.devices)
+        self.trainer = make_trainer(self.env, self.agent, train_cfg, placement=self.placement)
         self.num_chunks = train_cfg.num_chunks
         self.progress_unit, self.progress_total = "env_steps", train_cfg.num_chunks * train_cfg.eval_every
         self._eval_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x5EED)
@@ -138,11 +148,15 @@ class OffPolicyRun:
         import time
 
         t0 = time.perf_counter()
-        self._chunk = jax.jit(self.chunk, donate_argnums=0).lower(state).compile()
+        self._chunk = jax.jit(self.chunk, donate_argnums=0).lower(self._placed(state)).compile()
         return time.perf_counter() - t0
 
+    def _placed(self, state: RLState) -> RLState:
+        """`state` on the run's devices (a restored checkpoint comes back on one)."""
+        return self.placement.place(state, RLState(STATE_AXES, None))  # type: ignore[arg-type]
+
     def run_chunk(self, state: RLState) -> tuple[RLState, Any]:
-        return self._chunk(state)
+        return self._chunk(self._placed(state))
 
     def log_row(self, state: RLState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row: dict[str, float] = {"env_steps": int(state.train.env_steps), "grad_steps": int(state.train.grad_steps)}
