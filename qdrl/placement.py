@@ -184,6 +184,38 @@ def fetch(tree: Any) -> Any:
     return Placement(_mesh(jax.device_count())).fetch(tree)
 
 
+def is_distributed() -> bool:
+    """True in a run of several processes (`jax.distributed`)."""
+    return jax.process_count() > 1
+
+
 def is_primary() -> bool:
     """True in the process that writes a run's files (process 0; the only one without jax.distributed)."""
     return jax.process_index() == 0
+
+
+def initialize_distributed(
+    coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None
+) -> None:
+    """Join a multi-process run (`jax.distributed.initialize`), before anything touches a device.
+
+    Each value not given is read from `JAX_COORDINATOR_ADDRESS`, `JAX_NUM_PROCESSES` and
+    `JAX_PROCESS_ID`; when none is set either, jax detects the cluster (Slurm, Open MPI,
+    Kubernetes, Cloud TPU). Every process then sees every process's devices; CPU
+    collectives across processes go through gloo (jax's default).
+    """
+    import os
+
+    env = os.environ
+    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS") or None
+    if num_processes is None and env.get("JAX_NUM_PROCESSES"):
+        num_processes = int(env["JAX_NUM_PROCESSES"])
+    if process_id is None and env.get("JAX_PROCESS_ID"):
+        process_id = int(env["JAX_PROCESS_ID"])
+    try:
+        jax.distributed.initialize(coordinator, num_processes, process_id)
+    except ValueError as e:  # e.g. no coordinator given and no cluster detected
+        raise ConfigError(
+            f"--distributed: expected --coordinator HOST:PORT, --num-processes and --process-id (or "
+            f"JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, JAX_PROCESS_ID, or a Slurm / Open MPI job); {e}"
+        ) from None

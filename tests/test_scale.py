@@ -140,3 +140,34 @@ def test_batches_that_do_not_split_are_rejected(runs: tuple[Path, list[dict[str,
         "evenly over the devices), got 15")}
     assert summaries[10]["error"].startswith("train.num_envs: expected a multiple of the device count 2")
     assert summaries[11] == {"error": "experiment.devices: expected 0 (all) or at most the 2 visible device(s), got 3"}
+
+
+def test_two_processes_give_the_single_process_repertoire(runs: tuple[Path, list[dict[str, Any]]]) -> None:
+    """MAP-Elites as 2 jax.distributed processes on localhost (one CPU device each, gloo
+    collectives) fills the repertoire of a single-process run bit for bit; process 0 alone
+    writes the run directory."""
+    import socket
+
+    tmp, _ = runs
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp / "two_processes"
+    jobs = json.dumps([{"spec": on_devices(ARM, 0), "out": str(out)}])
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    procs = [
+        subprocess.Popen(
+            [sys.executable, str(WORKER), jobs, f"127.0.0.1:{port}", "2", str(i)],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        for i in range(2)
+    ]
+    results = [p.communicate(timeout=600) for p in procs]
+    for p, (_, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err[-3000:]
+    summaries = [json.loads(next(x for x in o.splitlines() if x.startswith("RESULT "))[7:])[0] for o, _ in results]
+    assert summaries[0]["qd_score"] == summaries[1]["qd_score"]
+    for k, v in repertoire(tmp / "arm1").items():
+        np.testing.assert_array_equal(repertoire(out)[k], v, err_msg=k)
+    assert (out / "summary.json").is_file() and (out / "metrics.csv").read_text().count("\n") == 3
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["step_0000000001", "step_0000000002"]
