@@ -16,6 +16,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -142,6 +143,9 @@ def bench_scaling(quick: bool, seed: int = 0, config: str | None = None) -> list
     if unknown or devices < 2:
         raise ValueError(f"scaling: expected config 'N' or 'N:case' with N >= 2 and case one of {sorted(CASES)}, got {config!r}")
     env = dict(os.environ)
+    # The child imports this very qdrl (a source checkout as much as an installed one).
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH", "")) if p)
     if jax.devices()[0].platform == "cpu":
         env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}".strip()
     args = json.dumps({"names": names, "devices": [1, devices], "quick": quick, "repeats": 1 if quick else 3, "seed": seed})

@@ -171,3 +171,18 @@ def test_two_processes_give_the_single_process_repertoire(runs: tuple[Path, list
         np.testing.assert_array_equal(repertoire(out)[k], v, err_msg=k)
     assert (out / "summary.json").is_file() and (out / "metrics.csv").read_text().count("\n") == 3
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["step_0000000001", "step_0000000002"]
+
+
+@pytest.mark.slow
+def test_bench_scaling_reports_both_device_counts() -> None:
+    """`qdrl bench scaling --quick --config 2:map_elites_arm`: a figure per device count, the
+    one-device efficiency 1 by definition, the two-device one computed from both."""
+    from qdrl.bench_scaling import bench_scaling
+
+    one, two = bench_scaling(quick=True, config="2:map_elites_arm")
+    assert (one["devices"], two["devices"]) == (1, 2)
+    assert one["unit"] == two["unit"] == "evaluations_per_s"
+    assert one["parallel_efficiency"] == 1.0
+    assert two["parallel_efficiency"] == pytest.approx(two["throughput"] / (2 * one["throughput"]), abs=2e-3)
+    with pytest.raises(ValueError, match="N:case"):
+        bench_scaling(quick=True, config="2:nope")
