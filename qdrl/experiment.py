@@ -548,6 +548,7 @@ def run(
             progress.close()
             raise ConfigError(f"--resume: {e}") from None
         startup_s = time.perf_counter() - t0
+        placement.barrier("compiled")  # processes that compiled faster wait for the others
         progress.compiled(startup_s)
         if primary:
             compile_cache.record(key, exp.algorithm, run_.task, startup_s, cold=cache["hits"] == 0)

@@ -189,6 +189,23 @@ def is_distributed() -> bool:
     return jax.process_count() > 1
 
 
+def barrier(name: str, timeout_s: int = 3600) -> None:
+    """Wait until every process of a jax.distributed run gets here (nothing with one process).
+
+    The first collective of a program gives the other processes 30 s to arrive (gloo's
+    context set-up); processes that compile at different speeds meet here first. It
+    goes through the coordination service (the barrier jax's own checkpointing uses),
+    not through a collective.
+    """
+    if jax.process_count() == 1:
+        return
+    from jax._src import distributed  # the client of jax.distributed.initialize
+
+    client = distributed.global_state.client
+    if client is not None:
+        client.wait_at_barrier(f"qdrl_{name}", timeout_in_ms=timeout_s * 1000)
+
+
 def is_primary() -> bool:
     """True in the process that writes a run's files (process 0; the only one without jax.distributed)."""
     return jax.process_index() == 0

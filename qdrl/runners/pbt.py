@@ -124,12 +124,14 @@ class PBTRun(OffPolicyRun):
         return self.placement.place(PBTState(population, archive, key, chunks, exploits), PBT_AXES), out
 
     def log_row(self, state: PBTState, chunk_metrics: Any, chunk: int) -> dict[str, float]:  # type: ignore[override]
-        m = jax.device_get(chunk_metrics)
-        member_steps = int(np.asarray(state.population.env_steps)[0])
+        m = self.placement.fetch(chunk_metrics)
+        # The members' counters may live on other processes (jax.distributed): gathered.
+        env_steps, grad_steps = self.placement.fetch((state.population.env_steps, state.population.grad_steps))
+        member_steps = int(np.asarray(env_steps)[0])
         row: dict[str, float] = {
             "env_steps": member_steps * self.pbt_cfg.population_size,
             "member_env_steps": member_steps,
-            "grad_steps": int(np.asarray(state.population.grad_steps).sum()),
+            "grad_steps": int(np.asarray(grad_steps).sum()),
         }
         for i, r in enumerate(np.asarray(m.pop("eval_returns_members"))):
             row[f"eval_return_m{i}"] = float(r)
