@@ -166,10 +166,12 @@ def make_trainer(
         n = config.grad_steps_per_iter
         flat = storage.sample(buffer, sample_key, n * config.batch_size)
         batches = jax.tree.map(lambda x: x.reshape((n, config.batch_size, *x.shape[1:])), flat)
-        batches = place.batched(batches, axis=1)  # each step's batch split: data-parallel gradients
 
         def one(s: AgentState, xs: tuple[Any, PRNGKey]) -> tuple[AgentState, Any]:
-            return agent.update(s, xs[0], xs[1])
+            # The step's batch split over the devices, the agent replicated: XLA computes
+            # per-device partial gradients and all-reduces them (data-parallel).
+            s, m = agent.update(place.replicated(s), place.batched(xs[0]), xs[1])
+            return place.replicated(s), m
 
         s, metrics = jax.lax.scan(one, agent_state, (batches, jax.random.split(update_key, n)))
         # nan marks a metric an update did not produce (a model trained every k-th update).
