@@ -255,8 +255,15 @@ class MapElites:
             env_steps=jnp.asarray(evaluation.env_steps, jnp.int32),
         ))
 
+    @property
+    def state_axes(self) -> QDState:
+        """Which axis of each part of the state is split over the devices (None: replicated):
+        all replicated, but for an emitter that declares `state_axes` (ME-PBT's members)."""
+        emitter_axes = getattr(self.emitter, "state_axes", None)
+        return QDState(None, emitter_axes, None, None, None, None)  # type: ignore[arg-type]
+
     def _replicated(self, state: QDState) -> QDState:
-        return self.placement.replicated(state)
+        return self.placement.place(state, self.state_axes)
 
     def init_values(
         self, genotypes: Genotype, fitnesses: Fitness, descriptors: Descriptor, key: PRNGKey

@@ -227,7 +227,7 @@ class MEPBTRun(QDRun):
         example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
         space = pbt.search_space(agent_name, self.me_cfg.pbt_config(), example.hparams)
         trainer = make_trainer(task.env, self.agent, self.me_cfg.train_config())
-        self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg)
+        self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg, placement=self.placement)
 
     def _emitter(self, make_ga: Any) -> Any:
         del make_ga  # ME-PBT's GA is part of its emitter ([me_pbt])
@@ -284,6 +284,7 @@ def parse_me_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str
             f"{me_cfg.population_size}, got {sections['qd'].init_batch_size}"
         )
     check_search_space(agent_name, me_cfg.pbt_config(), agent_cfg, "me_pbt")
+    check_divisible(me_cfg.population_size, exp.num_devices, "me_pbt.population_size")
     sections.update({"agent": agent_cfg, "me_pbt": me_cfg})
     return sections
 

@@ -399,12 +399,13 @@ class QDRun:
         assert self.map_elites is not None
         me, n = self.map_elites, self.qd_cfg.log_every
         t0 = time.perf_counter()
-        state = self.placement.replicated(state)  # a restored checkpoint comes back on one device
+        state = self.placement.place(state, me.state_axes)  # a restored checkpoint comes back on one device
         self._chunk = jax.jit(lambda s: me.run(s, n), donate_argnums=0).lower(state).compile()
         return time.perf_counter() - t0
 
     def run_chunk(self, state: QDState) -> tuple[QDState, Any]:
-        state = self.placement.replicated(state)
+        assert self.map_elites is not None
+        state = self.placement.place(state, self.map_elites.state_axes)
         if self._lapack is contextlib.nullcontext:
             return self._chunk(state)
         # CMA-ES's eigendecompositions run on one OpenBLAS thread (qdrl.lapack_threads),
