@@ -186,3 +186,21 @@ def test_bench_scaling_reports_both_device_counts() -> None:
     assert two["parallel_efficiency"] == pytest.approx(two["throughput"] / (2 * one["throughput"]), abs=2e-3)
     with pytest.raises(ValueError, match="N:case"):
         bench_scaling(quick=True, config="2:nope")
+
+
+@pytest.mark.slow
+def test_brax_tasks_two_devices_bit_exact(tmp_path: Path) -> None:
+    """MAP-Elites and PGA-ME on halfcheetah_uni (brax, spring): bit for bit on 2 devices as on 1
+    when both roll out blocks of the same width (`task.eval_batch` = the per-device batch);
+    brax's per-lane numerics depend on that width, not on the device a lane runs on."""
+    task = {"name": "halfcheetah_uni", "episode_length": 20, "backend": "spring", "eval_batch": 4,
+            "policy_hidden": [8, 8]}
+    me = {**ARM, "task": task, "repertoire": PGA_ME["repertoire"], "emitter": {"kind": "isoline", "batch_size": 8},
+          "qd": {"num_iterations": 4, "log_every": 2, "init_batch_size": 8}}
+    pga = {**PGA_ME, "task": task}
+    jobs = [{"spec": on_devices(spec, d), "out": str(tmp_path / f"{name}{d}")}
+            for name, spec in (("me", me), ("pga", pga)) for d in (1, 2)]
+    run_worker(jobs)
+    for name in ("me", "pga"):
+        for k, v in repertoire(tmp_path / f"{name}1").items():
+            np.testing.assert_array_equal(repertoire(tmp_path / f"{name}2")[k], v, err_msg=f"{name} {k}")
