@@ -590,6 +590,9 @@ def run_bench(
     config: str | None = None,
 ) -> dict[str, Any]:
     """Run benchmark `name`; returns (and optionally writes) its JSON record."""
+    from qdrl import bench_scaling
+
+    BENCHES.setdefault("scaling", bench_scaling.bench_scaling)
     if name not in BENCHES:
         raise ValueError(f"unknown benchmark {name!r}; expected one of {sorted(BENCHES)}")
     record = {

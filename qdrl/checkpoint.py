@@ -149,6 +149,11 @@ def _write_synced(path: Path, data: bytes) -> None:
         os.fsync(f.fileno())
 
 
+def step_name(step: int) -> str:
+    """The directory name of checkpoint `step`."""
+    return f"step_{step:010d}"
+
+
 def save(
     directory: str | os.PathLike[str],
     step: int,
@@ -178,7 +183,7 @@ def save(
         raise ValueError(f"keep must be >= 1, got {keep}")
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    final = directory / f"step_{step:010d}"
+    final = directory / step_name(step)
 
     leaves, treedef = jax.tree_util.tree_flatten(state)
     arrays: dict[str, Any] = {}  # Any: numpy stubs would match allow_pickle in **arrays

@@ -68,9 +68,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
         run_spec,
     )
 
+    if args.devices is not None:
+        args.set = [*args.set, f"experiment.devices={args.devices}"]
     out_dir = Path(args.out) if args.out else default_out_dir(args.spec)
     resume = resume_command(args.spec, args.set, out_dir, args.seeds)
     try:
+        if args.distributed or any(v is not None for v in (args.coordinator, args.num_processes, args.process_id)):
+            from qdrl.placement import initialize_distributed
+
+            initialize_distributed(args.coordinator, args.num_processes, args.process_id)
         specs.resolve(args.spec)
         seeds = parse_seeds(args.seeds) if args.seeds is not None else None
         # Libraries print notices on stdout (mujoco-mjx: "Failed to import warp");
@@ -240,13 +246,26 @@ def main(argv: list[str] | None = None) -> int:
         help="check the spec and build its run without compiling or running it; "
         "print the resolved spec (every default filled in) as TOML",
     )
+    p_run.add_argument(
+        "--devices", type=int, default=None, metavar="N",
+        help="devices to spread the batch over (experiment.devices; default: the spec's, 0 = all visible)",
+    )
+    p_run.add_argument(
+        "--distributed", action="store_true",
+        help="one process of a multi-host run (jax.distributed): the coordinator, process count "
+        "and id come from the flags below, JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES / "
+        "JAX_PROCESS_ID, or the cluster (Slurm, Open MPI); process 0 writes the run directory",
+    )
+    p_run.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="process 0's address (implies --distributed)")
+    p_run.add_argument("--num-processes", type=int, default=None, metavar="N", help="processes in the run (implies --distributed)")
+    p_run.add_argument("--process-id", type=int, default=None, metavar="I", help="this process's index, 0 to N-1 (implies --distributed)")
     p_run.set_defaults(fn=_cmd_run)
 
     p_list = sub.add_parser("list", help="list specs, algorithms and tasks")
     p_list.set_defaults(fn=_cmd_list)
 
     p_bench = sub.add_parser("bench", help="throughput benchmarks; prints JSON")
-    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark: rl, map_elites, tasks")
+    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark: rl, map_elites, tasks, scaling (1 vs N devices; --config N)")
     p_bench.add_argument("--quick", action="store_true", help="a small, fast version")
     p_bench.add_argument("--out", default=None, help="also write the JSON to this file")
     p_bench.add_argument("--seed", type=int, default=0, help="random seed")

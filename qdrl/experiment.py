@@ -27,9 +27,10 @@ from typing import Annotated, Any, NamedTuple, Protocol
 import jax
 import numpy as np
 
-from qdrl import checkpoint, compile_cache, interrupt, loggers, specs
+from qdrl import checkpoint, compile_cache, interrupt, loggers, placement, specs
 from qdrl.config import (
     ConfigError,
+    NonNegativeInt,
     OneOf,
     PositiveInt,
     Range,
@@ -60,9 +61,19 @@ class ExperimentConfig:
     algorithm: AlgorithmName  # a name from `qdrl list`
     seed: Seed = 0  # seeds every random choice of the run
     name: str = ""  # a label for plots and summaries; default: the spec file's stem
+    # Devices the run spreads its batch over (qdrl.placement); 0: every visible device
+    # (of every process under jax.distributed). Batch sizes must divide by it.
+    devices: NonNegativeInt = 0
 
     def check(self) -> None:
         check_fields(self, "experiment")
+
+    @property
+    def num_devices(self) -> int:
+        """`devices` resolved against the visible devices; ConfigError when too many are asked for."""
+        from qdrl.placement import resolve_devices
+
+        return resolve_devices(self.devices)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -477,6 +488,9 @@ def run(
     """
     started = time.perf_counter()
     run_, exp, log = build_run(spec)
+    # Under jax.distributed every process runs the same spec; process 0 alone writes
+    # the run directory (read by all on --resume: it must be on a shared filesystem).
+    primary = placement.is_primary()
     config_text = resolved_toml(run_, exp, log)
     ckpt_dir = out_dir / "checkpoints"
     found = checkpoint.checkpoints(ckpt_dir)
@@ -490,23 +504,24 @@ def run(
             raise ConfigError(f"--resume: no checkpoint found in {ckpt_dir}")
         _check_resume_spec(out_dir / "config.toml", config_text)
         _check_resume_checkpoints(found, run_)
-    if overwrite and not resume and out_dir.exists():
+    if primary and overwrite and not resume and out_dir.exists():
         shutil.rmtree(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if not resume:
+    if primary:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    if primary and not resume:
         (out_dir / "config.toml").write_text(config_text)
     if on_start is not None:
         on_start(out_dir)
 
     what = f"{exp.algorithm} on {run_.task}" + (f" ({label})" if label else "")
-    progress = RunProgress(log.progress, what, run_.progress_unit, run_.progress_total)
+    progress = RunProgress(log.progress and primary, what, run_.progress_unit, run_.progress_total)
     key = compile_cache.spec_key(config_text)
     stop_message = (
         "qdrl: stopping after the chunk in flight and saving a checkpoint "
         "(press Ctrl-C again to abort at once; the checkpoints on disk are kept)"
     )
     # Loggers start before compiling, so a missing package fails at once.
-    with _make_loggers(log, out_dir, exp, config_text) as dashboards, \
+    with _make_loggers(log if primary else _NO_LOGGERS, out_dir, exp, config_text) as dashboards, \
             compile_cache.enabled(log.compile_cache), interrupt.Interrupts(stop_message) as stop, \
             interrupt.Worker() as worker:
 
@@ -533,13 +548,15 @@ def run(
             progress.close()
             raise ConfigError(f"--resume: {e}") from None
         startup_s = time.perf_counter() - t0
+        placement.barrier("compiled")  # processes that compiled faster wait for the others
         progress.compiled(startup_s)
-        compile_cache.record(key, exp.algorithm, run_.task, startup_s, cold=cache["hits"] == 0)
+        if primary:
+            compile_cache.record(key, exp.algorithm, run_.task, startup_s, cold=cache["hits"] == 0)
 
         start_chunk, wall_offset, run_s, rows = 0, 0.0, 0.0, []
         metrics_path = out_dir / "metrics.csv"
         if restored is not None:
-            for path, why in skipped:
+            for path, why in skipped if primary else ():
                 checkpoint.remove(path)
                 print(f"qdrl: --resume: {path.name} is unusable ({why}); removed it", file=sys.stderr)
             start_chunk = int(meta["chunk"]) + 1
@@ -550,11 +567,13 @@ def run(
                 )
             wall_offset, run_s = float(meta["wall_s"]), float(meta["run_s"])
             rows = _read_rows(metrics_path)[:start_chunk]
-            _write_rows(metrics_path, rows)
-            (out_dir / "config.toml").write_text(config_text)
-        elif metrics_path.exists():
+            if primary:
+                _write_rows(metrics_path, rows)
+                (out_dir / "config.toml").write_text(config_text)
+        elif primary and metrics_path.exists():
             metrics_path.unlink()
-        (out_dir / "summary.json").unlink(missing_ok=True)  # rewritten when the run ends
+        if primary:
+            (out_dir / "summary.json").unlink(missing_ok=True)  # rewritten when the run ends
 
         stop.abort_at_once = False
         progress.start(_progress_value(run_, rows[-1], start_chunk - 1) if rows else 0)
@@ -562,7 +581,10 @@ def run(
 
         def save(chunk: int, row: Mapping[str, float], wall_s: float) -> Path:
             meta = {"chunk": chunk, "env_steps": int(row["env_steps"]), "wall_s": wall_s, "run_s": run_s}
-            return checkpoint.save(ckpt_dir, chunk + 1, jax.device_get(state), meta, keep=log.keep_checkpoints)
+            host = placement.fetch(state)  # every process takes part: parts may live in others
+            if not primary:
+                return ckpt_dir / checkpoint.step_name(chunk + 1)
+            return checkpoint.save(ckpt_dir, chunk + 1, host, meta, keep=log.keep_checkpoints)
 
         try:
             for chunk in range(start_chunk, run_.num_chunks):
@@ -582,7 +604,8 @@ def run(
                 if "evaluations" in row:
                     row["evaluations_per_s"] = row["evaluations"] / run_s if run_s > 0 else math.nan
                 rows.append(row)
-                _append_row(metrics_path, row)
+                if primary:
+                    _append_row(metrics_path, row)
                 dashboards.log(row, _progress_value(run_, row, chunk))
                 last = chunk == run_.num_chunks - 1
                 saved = (chunk + 1) % log.checkpoint_every == 0 or last
@@ -616,6 +639,10 @@ def run(
         summary["evaluations"] = int(final["evaluations"])
     summary.update({k: v for k, v in final.items() if k not in summary and k != "log_point"})
     summary.update(_descriptor_space(run_))
+    if placement.is_distributed():
+        state = placement.fetch(state)  # finish reads every part on process 0
+    if not primary:
+        return summary
     summary.update(run_.finish(state, rows, out_dir))
     if log.plots and rows:
         from qdrl import plotting
@@ -644,6 +671,9 @@ def _descriptor_space(run_: Run) -> dict[str, Any]:
         "descriptor_high": [float(v) for v in high],
         "descriptor_names": list(names),
     }
+
+
+_NO_LOGGERS = LogConfig()  # processes other than 0 log nowhere (TensorBoard and W&B are off by default)
 
 
 def _newest_log_point(ckpt_dir: Path) -> tuple[Path | None, int]:

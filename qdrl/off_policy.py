@@ -8,6 +8,12 @@ random and no update runs. `Trainer.run_chunk` scans many iterations; Python
 only runs between chunks. Where transitions are stored is a parameter
 (`Storage`): the ring replay buffer by default, or a buffer that also knows each
 transition's episode return (`EPISODE_RETURNS`, for SMERL).
+
+On several devices (`placement`, `qdrl.placement`) the environments are split
+over the devices (`STATE_AXES`), the agent and the replay buffer are replicated,
+and each gradient step is data-parallel: its batch is split over the devices and
+the gradients are averaged across them (the loss's mean over the batch, which
+XLA partitions into per-device sums and one all-reduce).
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from qdrl import buffers
 from qdrl.agents.base import Agent, AgentState
 from qdrl.config import NonNegativeInt, PositiveInt, check_fields
 from qdrl.envs.base import Env, EnvState, reset_batch
+from qdrl.placement import Placement
 from qdrl.rollout import env_step, run_episodes
 from qdrl.types import Array, PRNGKey, Transition
 
@@ -107,6 +114,10 @@ class TrainState(NamedTuple):
     grad_steps: Array  # int32, agent updates taken
 
 
+# Which axis of each part of a `TrainState` is split over the devices (None: replicated).
+STATE_AXES = TrainState(agent=None, buffer=None, env=0, key=None, env_steps=None, grad_steps=None)  # type: ignore[arg-type]
+
+
 class Trainer(NamedTuple):
     """The jittable functions of one off-policy run."""
 
@@ -124,25 +135,30 @@ def _transition_example(env: Env) -> Transition:
 
 
 def make_trainer(
-    env: Env, agent: Agent, config: TrainConfig, storage: Storage = REPLAY
+    env: Env, agent: Agent, config: TrainConfig, storage: Storage = REPLAY,
+    placement: Placement | None = None,
 ) -> Trainer:
     """Build the init / chunk / evaluate functions of an off-policy run of `agent` on `env`.
 
-    `storage` says where transitions go and what batches `agent.update` receives.
+    `storage` says where transitions go and what batches `agent.update` receives;
+    `placement` spreads the environments and each gradient step's batch over its
+    devices (see the module docstring; `num_envs` and `batch_size` must divide by
+    their number).
     """
     config.check()
+    place = placement or Placement()
     action_size = env.action_size
 
     def init(key: PRNGKey) -> TrainState:
         agent_key, env_key, key = jax.random.split(key, 3)
-        return TrainState(
+        return place.place(TrainState(
             agent=agent.init(agent_key),
             buffer=storage.init(_transition_example(env), config.buffer_size, config.num_envs),
             env=reset_batch(env, env_key, config.num_envs),
             key=key,
             env_steps=jnp.zeros((), jnp.int32),
             grad_steps=jnp.zeros((), jnp.int32),
-        )
+        ), STATE_AXES)
 
     def updates(agent_state: AgentState, buffer: Any, key: PRNGKey) -> Any:
         # All batches of the iteration come from one gather, then one update each.
@@ -152,7 +168,10 @@ def make_trainer(
         batches = jax.tree.map(lambda x: x.reshape((n, config.batch_size, *x.shape[1:])), flat)
 
         def one(s: AgentState, xs: tuple[Any, PRNGKey]) -> tuple[AgentState, Any]:
-            return agent.update(s, xs[0], xs[1])
+            # The step's batch split over the devices, the agent replicated: XLA computes
+            # per-device partial gradients and all-reduces them (data-parallel).
+            s, m = agent.update(place.replicated(s), place.batched(xs[0]), xs[1])
+            return place.replicated(s), m
 
         s, metrics = jax.lax.scan(one, agent_state, (batches, jax.random.split(update_key, n)))
         # nan marks a metric an update did not produce (a model trained every k-th update).
@@ -168,7 +187,8 @@ def make_trainer(
             return jnp.where(warmup, uniform, agent.act(ts.agent, obs, agent_key))
 
         env_state, transition = env_step(env, ts.env, policy, act_key)
-        buffer = storage.insert(ts.buffer, transition, env_state)
+        env_state = place.batched(env_state)
+        buffer = place.replicated(storage.insert(ts.buffer, transition, env_state))
         env_steps = ts.env_steps + config.num_envs
         can_train = (env_steps >= config.learning_starts) & (buffer.size >= config.batch_size)
 
@@ -178,6 +198,7 @@ def make_trainer(
             return s, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), metric_shapes)
 
         agent_state, metrics = jax.lax.cond(can_train, updates, skip, ts.agent, buffer, update_key)
+        agent_state = place.replicated(agent_state)
         metrics = dict(metrics)
         metrics["train_return"] = jnp.nanmean(env_state.last_return)
         new = TrainState(

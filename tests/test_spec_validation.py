@@ -327,7 +327,7 @@ def test_check_flag_prints_the_resolved_spec(tmp_path: Path, capsys: pytest.Capt
     spec.write_text('[experiment]\nalgorithm = "map_elites"\n[task]\nname = "arm"\nnum_dofs = 4\n')
     assert main(["run", str(spec), "--check", "--set", "qd.log_every=10", "--out", str(tmp_path / "o")]) == 0
     resolved = tomllib.loads(capsys.readouterr().out)
-    assert resolved["experiment"] == {"algorithm": "map_elites", "seed": 0, "name": "arm"}
+    assert resolved["experiment"] == {"algorithm": "map_elites", "seed": 0, "name": "arm", "devices": 0}
     assert resolved["task"] == {"name": "arm", "num_dofs": 4}
     assert resolved["qd"]["log_every"] == 10 and resolved["emitter"]["batch_size"] == 1024
     assert not (tmp_path / "o").exists()  # nothing ran

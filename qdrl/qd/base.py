@@ -28,6 +28,11 @@ class Evaluation(NamedTuple):
 
 ScoringFn = Callable[[Genotype, PRNGKey], Evaluation]
 
+# Extras whose batch axis is the second (time-major, (T, n, ...)); every other extra
+# is batch-major (n, ...). Sharded evaluation (`qdrl.qd.map_elites.shard_scoring`)
+# splits each on its batch axis.
+TIME_MAJOR_EXTRAS = frozenset({"transitions", "mask", "recorded"})
+
 
 class AddResult(NamedTuple):
     """Per-candidate outcome of `repertoire.add`, for emitters that rank offspring."""

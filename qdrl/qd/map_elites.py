@@ -27,7 +27,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire, ScoringFn
+from qdrl.placement import BATCH_AXIS, Placement
+from qdrl.qd.base import TIME_MAJOR_EXTRAS, AddResult, Emitter, Evaluation, Repertoire, ScoringFn
 from qdrl.qd.metrics import qd_metrics
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
@@ -149,6 +150,39 @@ def _unpack_scalars(
     return metrics
 
 
+def shard_scoring(scoring_fn: ScoringFn, placement: Placement) -> ScoringFn:
+    """`scoring_fn` evaluating each device's share of the batch on that device (`shard_map`).
+
+    The evaluation comes back split over the devices on its batch axis (the second
+    axis for `TIME_MAJOR_EXTRAS`), its env steps summed. A lane's evaluation is the
+    computation it gets on one device when the per-device batch (a policy task's
+    `eval_batch`) is the same; the key each device receives has its index folded in,
+    so tasks that draw random numbers draw other ones than on one device.
+    """
+    if placement.mesh is None:
+        return scoring_fn
+    from jax.sharding import PartitionSpec as P
+
+    def local(genotypes: Genotype, key: PRNGKey) -> Evaluation:
+        ev = scoring_fn(genotypes, key)
+        return ev._replace(env_steps=jnp.reshape(jnp.asarray(ev.env_steps, jnp.int32), (1,)))
+
+    def specs(ev: Evaluation) -> Any:
+        extras = {
+            k: jax.tree.map(lambda _, t=k in TIME_MAJOR_EXTRAS: P(None, BATCH_AXIS) if t else P(BATCH_AXIS), v)
+            for k, v in ev.extras.items()
+        }
+        return Evaluation(P(BATCH_AXIS), P(BATCH_AXIS), extras, P(BATCH_AXIS))  # type: ignore[arg-type]
+
+    sharded = placement.map_batch(local, specs)
+
+    def scoring(genotypes: Genotype, key: PRNGKey) -> Evaluation:
+        ev = check_evaluation_type(sharded(placement.batched(genotypes), key), "scoring_fn returned")
+        return ev._replace(env_steps=jnp.sum(ev.env_steps))
+
+    return scoring
+
+
 class MapElites:
     """MAP-Elites over any repertoire, emitter and scoring function."""
 
@@ -159,11 +193,14 @@ class MapElites:
         repertoire: Repertoire,
         qd_offset: float = 0.0,
         metrics_fn: Callable[[Any, float], dict[str, Array]] = qd_metrics,
+        placement: Placement | None = None,
     ) -> None:
         """`repertoire` is the empty container to fill; `qd_offset` as in `qd_metrics`.
 
         `scoring_fn` may be None when every evaluation happens outside JAX
-        (`init_values`, `ask`, `tell_values`).
+        (`init_values`, `ask`, `tell_values`). `placement` (`qdrl.placement`): offspring
+        are generated and evaluated split over its devices, the repertoire and the
+        emitter state are replicated and updated identically on each.
         """
         if scoring_fn is not None and not callable(scoring_fn):
             raise TypeError(
@@ -171,6 +208,8 @@ class MapElites:
                 f"{type(scoring_fn).__name__}"
             )
         self.scoring_fn = scoring_fn
+        self.placement = placement or Placement()
+        self._sharded_scoring = None if scoring_fn is None else shard_scoring(scoring_fn, self.placement)
         self.emitter = emitter
         self.empty_repertoire = repertoire
         self.qd_offset = qd_offset
@@ -202,18 +241,29 @@ class MapElites:
         )
         _check_some_finite(n, evaluation)
         emitter_key, key = jax.random.split(key)
+        genotypes, evaluation = self.placement.replicated((genotypes, evaluation))
         repertoire, _ = self.empty_repertoire.add(
             genotypes, evaluation.descriptors, evaluation.fitnesses
         )
         emitter_state = self.emitter.init(emitter_key, repertoire, evaluation, genotypes)
-        return QDState(
+        return self._replicated(QDState(
             repertoire=repertoire,
             emitter_state=emitter_state,
             key=key,
             iteration=jnp.zeros((), jnp.int32),
             evaluations=jnp.asarray(n, jnp.int32),
             env_steps=jnp.asarray(evaluation.env_steps, jnp.int32),
-        )
+        ))
+
+    @property
+    def state_axes(self) -> QDState:
+        """Which axis of each part of the state is split over the devices (None: replicated):
+        all replicated, but for an emitter that declares `state_axes` (ME-PBT's members)."""
+        emitter_axes = getattr(self.emitter, "state_axes", None)
+        return QDState(None, emitter_axes, None, None, None, None)  # type: ignore[arg-type]
+
+    def _replicated(self, state: QDState) -> QDState:
+        return self.placement.place(state, self.state_axes)
 
     def init_values(
         self, genotypes: Genotype, fitnesses: Fitness, descriptors: Descriptor, key: PRNGKey
@@ -222,12 +272,12 @@ class MapElites:
         return self.init_from_evaluation(genotypes, _evaluation(fitnesses, descriptors), key)
 
     def _score(self, genotypes: Genotype, key: PRNGKey) -> Evaluation:
-        if self.scoring_fn is None:
+        if self._sharded_scoring is None:
             raise ValueError(
                 "this MapElites has no scoring function: evaluate outside and use "
                 "init_values / ask / tell_values"
             )
-        return check_evaluation_type(self.scoring_fn(genotypes, key), "scoring_fn returned")
+        return check_evaluation_type(self._sharded_scoring(genotypes, key), "scoring_fn returned")
 
     def ask(self, state: QDState) -> tuple[Genotype, QDState]:
         """Offspring to evaluate, and the state with its key moved on.
@@ -242,7 +292,7 @@ class MapElites:
             )
         key, emit_key = jax.random.split(state.key)
         offspring = self.emitter.emit(state.emitter_state, state.repertoire, emit_key)
-        return offspring, state._replace(key=key)
+        return self.placement.batched(offspring), state._replace(key=key)
 
     def tell(
         self,
@@ -257,20 +307,21 @@ class MapElites:
             n, evaluation.fitnesses, evaluation.descriptors, self.descriptor_size, self.num_objectives
         )
         key, update_key = jax.random.split(state.key)
+        genotypes, evaluation = self.placement.replicated((genotypes, evaluation))
         repertoire, added = state.repertoire.add(
             genotypes, evaluation.descriptors, evaluation.fitnesses
         )
         emitter_state = self.emitter.update(
             state.emitter_state, repertoire, genotypes, evaluation, added, update_key
         )
-        new = QDState(
+        new = self._replicated(QDState(
             repertoire=repertoire,
             emitter_state=emitter_state,
             key=key,
             iteration=state.iteration + 1,
             evaluations=state.evaluations + n,
             env_steps=state.env_steps + jnp.asarray(evaluation.env_steps, jnp.int32),
-        )
+        ))
         return new, self._metrics(new, added)
 
     def tell_values(

@@ -31,6 +31,7 @@ import numpy as np
 
 from qdrl.config import ConfigError, NonNegativeFloat, PositiveInt, UnitFloat, build, check_table
 from qdrl.experiment import ExperimentConfig, Sections, register, scalar
+from qdrl.placement import check_divisible, make_placement
 from qdrl.runners.qd import QDConfig, QDRun, parse_qd, parse_task
 
 if TYPE_CHECKING:
@@ -98,6 +99,8 @@ def parse_population(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections
     qd_data = dict(check_table(spec.get("qd", {}), "qd"))
     qd_data.setdefault("init_batch_size", population.size)
     qd = build(QDConfig, qd_data, "qd")
+    check_divisible(population.size, exp.num_devices, "population.size")
+    check_divisible(qd.init_batch_size, exp.num_devices, "qd.init_batch_size")
     if qd.reevaluate_samples:
         raise ConfigError(f"qd.reevaluate_samples: expected 0 for a multi-objective run, got {qd.reevaluate_samples}")
     task = parse_task(spec.get("task", {"name": "zdt1"}), {"eval_batch": population.size})
@@ -238,7 +241,10 @@ class MOMERun(_MOMixin, QDRun):
         from qdrl.qd.map_elites import MapElites
 
         base = super()._build(key)  # the GA emitter of a QD run, on `empty_repertoire`
-        return MapElites(base.scoring_fn, base.emitter, base.empty_repertoire, metrics_fn=self.metrics_fn())
+        return MapElites(
+            base.scoring_fn, base.emitter, base.empty_repertoire, metrics_fn=self.metrics_fn(),
+            placement=self.placement,
+        )
 
     def empty_repertoire(self, key: jax.Array | None = None, centroids: Any = None) -> Any:
         """The empty MOME repertoire on the cells of `[repertoire]` (see `QDRun.empty_repertoire`)."""
@@ -269,6 +275,7 @@ class PopulationRun(_MOMixin, QDRun):
         self.num_chunks = self.qd_cfg.num_iterations // self.qd_cfg.log_every
         self.progress_unit, self.progress_total = "iteration", self.qd_cfg.num_iterations
         self.seed = exp.seed
+        self.placement = make_placement(exp.devices)
         self._chunk: Any = None
         self.map_elites: MapElites | None = None
 
@@ -288,7 +295,9 @@ class PopulationRun(_MOMixin, QDRun):
             c.size, c.crossover_eta, c.mutation_eta, mutation_prob, task.genotype_low,
             task.genotype_high, crossover_prob=c.crossover_prob,
         )
-        return MapElites(self.scoring(), emitter, self.empty_repertoire(), metrics_fn=self.metrics_fn())
+        return MapElites(
+            self.scoring(), emitter, self.empty_repertoire(), metrics_fn=self.metrics_fn(), placement=self.placement
+        )
 
     def empty_repertoire(self, key: jax.Array | None = None, centroids: Any = None) -> Any:
         """The empty population."""

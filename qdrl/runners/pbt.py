@@ -24,6 +24,7 @@ from qdrl import pbt
 from qdrl.config import ConfigError, build
 from qdrl.experiment import ExperimentConfig, Sections, register, scalar
 from qdrl.off_policy import TrainState
+from qdrl.placement import check_divisible
 from qdrl.qd.emitters.me_pbt import MEPBTConfig
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
@@ -41,10 +42,20 @@ class PBTState(NamedTuple):
     exploits: jax.Array  # int32, members replaced so far
 
 
+# Members are split over the devices (`qdrl.placement`); the rest is replicated.
+PBT_AXES = PBTState(population=0, archive=None, key=None, chunks=None, exploits=None)  # type: ignore[arg-type]
+
+
 class PBTRun(OffPolicyRun):
-    """A population of SAC or TD3 agents trained in one vmapped step, with exploit/explore."""
+    """A population of SAC or TD3 agents trained in one vmapped step, with exploit/explore.
+
+    On several devices each trains its share of the members (`PBT_AXES`); ranking and
+    copying members across devices is left to XLA (a gather of the chosen members).
+    """
 
     progress_keys: tuple[str, ...] = ("eval_return", "eval_return_median", "coverage")
+    shard_envs = False
+    state_axes = PBT_AXES
 
     def __init__(self, sections: Sections, exp: ExperimentConfig, agent_name: str) -> None:
         """Builds the environment, agent and trainer of checked `sections` (`parse_pbt`)."""
@@ -73,7 +84,7 @@ class PBTRun(OffPolicyRun):
             values = pbt.sample(hp_key, self.space, n)
             population = pbt.set_hparams(population, self.space, values)
             zero = jnp.zeros((), jnp.int32)
-            return PBTState(population, archive, run_key, zero, zero)
+            return self.placement.place(PBTState(population, archive, run_key, zero, zero), PBT_AXES)
 
         return jax.jit(make)(key)
 
@@ -81,7 +92,7 @@ class PBTRun(OffPolicyRun):
         """Train every member one log interval, evaluate each, then (on schedule) exploit/explore."""
         cfg = self.pbt_cfg
         n = cfg.population_size
-        population, metrics = jax.vmap(self.trainer.run_chunk)(state.population)
+        population, metrics = jax.vmap(self.trainer.run_chunk)(self.placement.batched(state.population))
         key, eval_key, pbt_key = jax.random.split(state.key, 3)
         ev = jax.vmap(self.trainer.evaluate)(population.agent, jax.random.split(eval_key, n))
         desc = ev["eval_final_desc"] if self.archive_cfg.descriptor == "final" else ev["eval_mean_desc"]
@@ -97,7 +108,7 @@ class PBTRun(OffPolicyRun):
         def step(p: TrainState) -> TrainState:
             return pbt.exploit_and_explore(pbt_key, p, fitness, self.space, cfg)[0]
 
-        population = jax.lax.cond(due, step, lambda p: p, population)
+        population = self.placement.batched(jax.lax.cond(due, step, lambda p: p, population))
         out: dict[str, Any] = {k: jnp.nanmean(v) for k, v in metrics.items()}
         out["eval_returns_members"] = fitness
         out["eval_return"] = fitness[best]
@@ -110,15 +121,17 @@ class PBTRun(OffPolicyRun):
         out.update(qd_metrics(archive, self.archive_cfg.qd_offset))
         exploits = state.exploits + jnp.where(due, cfg.num_replace, 0)
         out["exploits"] = exploits
-        return PBTState(population, archive, key, chunks, exploits), out
+        return self.placement.place(PBTState(population, archive, key, chunks, exploits), PBT_AXES), out
 
     def log_row(self, state: PBTState, chunk_metrics: Any, chunk: int) -> dict[str, float]:  # type: ignore[override]
-        m = jax.device_get(chunk_metrics)
-        member_steps = int(np.asarray(state.population.env_steps)[0])
+        m = self.placement.fetch(chunk_metrics)
+        # The members' counters may live on other processes (jax.distributed): gathered.
+        env_steps, grad_steps = self.placement.fetch((state.population.env_steps, state.population.grad_steps))
+        member_steps = int(np.asarray(env_steps)[0])
         row: dict[str, float] = {
             "env_steps": member_steps * self.pbt_cfg.population_size,
             "member_env_steps": member_steps,
-            "grad_steps": int(np.asarray(state.population.grad_steps).sum()),
+            "grad_steps": int(np.asarray(grad_steps).sum()),
         }
         for i, r in enumerate(np.asarray(m.pop("eval_returns_members"))):
             row[f"eval_return_m{i}"] = float(r)
@@ -163,8 +176,9 @@ def check_search_space(agent_name: str, config: pbt.PBTConfig, agent_config: Any
 
 def parse_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> Sections:
     """The checked sections of a PBT spec: those of a SAC/TD3 spec (`parse_off_policy`) and `[pbt]`."""
-    sections = parse_off_policy(spec, dataclasses.replace(exp, algorithm=agent_name))
+    sections = parse_off_policy(spec, dataclasses.replace(exp, algorithm=agent_name), shard_envs=False)
     sections["pbt"] = build(pbt.PBTConfig, spec.get("pbt", {}), "pbt")
+    check_divisible(sections["pbt"].population_size, exp.num_devices, "pbt.population_size")
     check_search_space(agent_name, sections["pbt"], sections["agent"], "pbt")
     return sections
 
@@ -213,7 +227,7 @@ class MEPBTRun(QDRun):
         example = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
         space = pbt.search_space(agent_name, self.me_cfg.pbt_config(), example.hparams)
         trainer = make_trainer(task.env, self.agent, self.me_cfg.train_config())
-        self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg)
+        self.emitter = MEPBTEmitter(self.agent, trainer, space, self.me_cfg, placement=self.placement)
 
     def _emitter(self, make_ga: Any) -> Any:
         del make_ga  # ME-PBT's GA is part of its emitter ([me_pbt])
@@ -260,7 +274,7 @@ def parse_me_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str
     me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
     sections = parse_qd(
         spec, exp, default_kind="cvt", eval_batch=me_cfg.ga_batch_size + me_cfg.population_size,
-        with_emitter=False,
+        with_emitter=False, batch_where="me_pbt.ga_batch_size (+ me_pbt.population_size)",
     )
     config_cls, _ = AGENTS[agent_name]
     agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
@@ -270,6 +284,7 @@ def parse_me_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str
             f"{me_cfg.population_size}, got {sections['qd'].init_batch_size}"
         )
     check_search_space(agent_name, me_cfg.pbt_config(), agent_cfg, "me_pbt")
+    check_divisible(me_cfg.population_size, exp.num_devices, "me_pbt.population_size")
     sections.update({"agent": agent_cfg, "me_pbt": me_cfg})
     return sections
 

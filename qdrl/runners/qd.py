@@ -31,6 +31,7 @@ from qdrl.config import (
 )
 from qdrl.experiment import ARRAY_SECTIONS, ExperimentConfig, Sections, register, scalar
 from qdrl.lapack_threads import single_threaded_lapack
+from qdrl.placement import Placement, check_divisible, make_placement
 from qdrl.qd.emitters.dcrl import DCRLConfig
 from qdrl.qd.emitters.ga import GAConfig, ga_emitter
 from qdrl.qd.emitters.pg import PGConfig
@@ -199,14 +200,17 @@ def parse_qd(
     eval_batch: int | None = None,
     with_emitter: bool = True,
     family: EmitterFamily = ANY_EMITTER,
+    batch_where: str = "emitter.batch_size",
 ) -> Sections:
     """The checked `[task]`, `[repertoire]`, `[emitter]` (or `[[emitters]]` and `[scheduler]`)
     and `[qd]` sections of a QD spec.
 
     `family` gives the algorithm's emitter kinds and defaults; `eval_batch`: the
-    batch a policy task rolls out at once (default: the offspring per iteration).
+    offspring per iteration when the run has no `[emitter]` (the spec key
+    `batch_where` sets it). Each of the `experiment.devices` rolls out its share of
+    them at once (a policy task's default `eval_batch`), so they must divide by it.
     """
-    del exp
+    devices = exp.num_devices
     rep_data = {**family.repertoire, **check_table(spec.get("repertoire", {}), "repertoire")}
     rep_data.setdefault("kind", default_kind)
     repertoire = build(RepertoireConfig, rep_data, "repertoire")
@@ -242,6 +246,10 @@ def parse_qd(
     qd = build(QDConfig, spec.get("qd", {}), "qd")
     if eval_batch is None:
         eval_batch = per_iteration
+    if eval_batch is not None:
+        check_divisible(eval_batch, devices, "emitters" if "emitters" in sections else batch_where)
+        eval_batch //= devices  # each device rolls out its share at once
+    check_divisible(qd.init_batch_size, devices, "qd.init_batch_size")
     defaults = {} if eval_batch is None else {"eval_batch": eval_batch}
     task = parse_task(spec.get("task", {"name": "arm"}), defaults)
     return {"task": task, **sections, "qd": qd}
@@ -275,6 +283,7 @@ class QDRun:
         self.num_chunks = self.qd_cfg.num_iterations // self.qd_cfg.log_every
         self.progress_unit, self.progress_total = "iteration", self.qd_cfg.num_iterations
         self.seed = exp.seed
+        self.placement: Placement = make_placement(exp.devices)
         self._chunk: Any = None
         self.map_elites: MapElites | None = None
         for config, section in self._emitter_sections():
@@ -311,7 +320,10 @@ class QDRun:
             assert isinstance(ec, GAConfig), "a run without a GA [emitter] builds no GA"
             return ga_emitter(ec, task.genotype_low, task.genotype_high, batch_size)
 
-        return MapElites(self._loop_scoring(), self._emitter(make_ga), repertoire, qd_offset=task.qd_offset)
+        return MapElites(
+            self._loop_scoring(), self._emitter(make_ga), repertoire, qd_offset=task.qd_offset,
+            placement=self.placement,
+        )
 
     def _loop_scoring(self) -> Any:
         """The QD loop's scoring function: with the task's gradients when an emitter reads every offspring's."""
@@ -387,10 +399,13 @@ class QDRun:
         assert self.map_elites is not None
         me, n = self.map_elites, self.qd_cfg.log_every
         t0 = time.perf_counter()
+        state = self.placement.place(state, me.state_axes)  # a restored checkpoint comes back on one device
         self._chunk = jax.jit(lambda s: me.run(s, n), donate_argnums=0).lower(state).compile()
         return time.perf_counter() - t0
 
     def run_chunk(self, state: QDState) -> tuple[QDState, Any]:
+        assert self.map_elites is not None
+        state = self.placement.place(state, self.map_elites.state_axes)
         if self._lapack is contextlib.nullcontext:
             return self._chunk(state)
         # CMA-ES's eigendecompositions run on one OpenBLAS thread (qdrl.lapack_threads),
@@ -757,7 +772,8 @@ def parse_me_es(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
     if "emitter" in spec:
         raise ConfigError("emitter: ME-ES has no GA emitter; its settings are in [es]")
     es = build(ESSection, spec.get("es", {}), "es")
-    sections = parse_qd(spec, exp, default_kind="cvt", eval_batch=es.population_size + 1, with_emitter=False)
+    sections = parse_qd(spec, exp, default_kind="cvt", eval_batch=es.population_size + 1, with_emitter=False,
+                        batch_where="es.population_size (+ 1, the parent)")
     sections["es"] = es
     return sections
 

@@ -14,7 +14,8 @@ from qdrl.config import ConfigError, OneOf, PositiveInt, build
 from qdrl.envs import env_names, make
 from qdrl.envs.brax import STATE_DESCRIPTORS, Backend
 from qdrl.experiment import ExperimentConfig, Sections, register, scalar
-from qdrl.off_policy import TrainConfig, TrainState, make_trainer
+from qdrl.off_policy import STATE_AXES, TrainConfig, TrainState, make_trainer
+from qdrl.placement import check_divisible, make_placement
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import CellRepertoire, observe, passive_archive
 
@@ -60,17 +61,27 @@ class ArchiveConfig:
             )
 
 
-def parse_off_policy(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
-    """The checked sections of a SAC or TD3 spec (`exp.algorithm` names the agent)."""
+def parse_off_policy(spec: Mapping[str, Any], exp: ExperimentConfig, shard_envs: bool = True) -> Sections:
+    """The checked sections of a SAC or TD3 spec (`exp.algorithm` names the agent); with
+    `shard_envs`, `[train]`'s batches are checked to split over `experiment.devices`."""
     from qdrl.agents import AGENTS
 
     config_cls, _ = AGENTS[exp.algorithm]
+    train = build(TrainConfig, spec.get("train", {}), "train")
+    if shard_envs:
+        check_train_devices(train, exp.num_devices)
     return {
         "env": build(EnvConfig, spec.get("env", {}), "env"),
         "agent": build(config_cls, spec.get("agent", {}), "agent"),
-        "train": build(TrainConfig, spec.get("train", {}), "train"),
+        "train": train,
         "archive": build(ArchiveConfig, spec.get("archive", {}), "archive"),
     }
+
+
+def check_train_devices(train: TrainConfig, devices: int) -> None:
+    """ConfigError unless `[train]`'s environments and gradient batch split evenly over `devices`."""
+    check_divisible(train.num_envs, devices, "train.num_envs")
+    check_divisible(train.batch_size, devices, "train.batch_size")
 
 
 class RLState(NamedTuple):
@@ -84,6 +95,9 @@ class OffPolicyRun:
     """A SAC or TD3 run: trainer chunks, then a deterministic evaluation fed to a passive archive."""
 
     progress_keys: tuple[str, ...] = ("eval_return", "coverage")
+    # What the devices split: each iteration's environments and gradient batch; PBT
+    # (False) splits its members instead and trains each on one device.
+    shard_envs: bool = True
 
     def __init__(self, sections: Sections, exp: ExperimentConfig) -> None:
         """Builds the environment, agent and trainer of checked `sections` (`parse_off_policy`)."""
@@ -110,7 +124,10 @@ class OffPolicyRun:
                 f"archive.grid_shape: expected {self.env.descriptor_size} entries (the state "
                 f"descriptor size of {env_cfg.name!r}), got {list(archive_cfg.grid_shape)}"
             )
-        self.trainer = make_trainer(self.env, self.agent, train_cfg)
+        self.placement = make_placement(exp.devices)
+        self.trainer = make_trainer(
+            self.env, self.agent, train_cfg, placement=self.placement if self.shard_envs else None
+        )
         self.num_chunks = train_cfg.num_chunks
         self.progress_unit, self.progress_total = "env_steps", train_cfg.num_chunks * train_cfg.eval_every
         self._eval_key = jax.random.fold_in(jax.random.PRNGKey(exp.seed), 0x5EED)
@@ -138,11 +155,18 @@ class OffPolicyRun:
         import time
 
         t0 = time.perf_counter()
-        self._chunk = jax.jit(self.chunk, donate_argnums=0).lower(state).compile()
+        self._chunk = jax.jit(self.chunk, donate_argnums=0).lower(self._placed(state)).compile()
         return time.perf_counter() - t0
 
-    def run_chunk(self, state: RLState) -> tuple[RLState, Any]:
-        return self._chunk(state)
+    # Which axis of each part of the state is split over the devices (None: replicated).
+    state_axes: Any = RLState(STATE_AXES, None)  # type: ignore[arg-type]
+
+    def _placed(self, state: Any) -> Any:
+        """`state` on the run's devices (a restored checkpoint comes back on one)."""
+        return self.placement.place(state, self.state_axes)
+
+    def run_chunk(self, state: Any) -> tuple[Any, Any]:
+        return self._chunk(self._placed(state))
 
     def log_row(self, state: RLState, chunk_metrics: Any, chunk: int) -> dict[str, float]:
         row: dict[str, float] = {"env_steps": int(state.train.env_steps), "grad_steps": int(state.train.grad_steps)}

@@ -41,10 +41,11 @@ from qdrl.envs.brax import Backend
 from qdrl.envs.skills import SkillEnv, append_skill
 from qdrl.experiment import ExperimentConfig, Sections, register
 from qdrl.off_policy import TrainConfig, make_trainer
+from qdrl.placement import make_placement
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires import observe
 from qdrl.rollout import run_episodes
-from qdrl.runners.rl import ArchiveConfig, OffPolicyRun, RLState
+from qdrl.runners.rl import ArchiveConfig, OffPolicyRun, RLState, check_train_devices
 from qdrl.tasks import Task, make_task
 from qdrl.types import Array, PRNGKey
 
@@ -124,7 +125,8 @@ class SkillRun(OffPolicyRun):
             raise ConfigError(msg if msg.startswith("skills.") else f"agent: {msg}") from e
         self.agent: Agent = with_skill_model(sac, self.module, skills_cfg, gate)
         storage = off_policy.EPISODE_RETURNS if gate is not None else off_policy.REPLAY
-        self.trainer = make_trainer(self.env, self.agent, train_cfg, storage)
+        self.placement = make_placement(exp.devices)
+        self.trainer = make_trainer(self.env, self.agent, train_cfg, storage, placement=self.placement)
         self.num_eval = train_cfg.num_eval_envs
         self.num_chunks = train_cfg.num_chunks
         self.progress_unit, self.progress_total = "env_steps", train_cfg.num_chunks * train_cfg.eval_every
@@ -264,10 +266,10 @@ def parse_skills(
     `[archive]` stays a table of the keys the spec gives (each checked): the run
     completes it with its task's descriptor bounds and QD offset (`SkillRun`).
     """
-    del exp
     env = build(SkillEnvConfig, spec.get("env", {}), "env")
     agent = build(SACConfig, spec.get("agent", {}), "agent")
     train = build(TrainConfig, spec.get("train", {}), "train")
+    check_train_devices(train, exp.num_devices)
     skills_data = dict(check_table(spec.get("skills", {}), "skills"))
     if smerl:
         # SMERL optimises the task reward (weight 1 in Kumar et al. 2020, eq. 3).

@@ -38,6 +38,7 @@ from qdrl.config import (
     check_fields,
 )
 from qdrl.off_policy import TrainConfig, Trainer, TrainState
+from qdrl.placement import Placement
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_variation
 from qdrl.types import Genotype, PRNGKey
@@ -165,10 +166,17 @@ class MEPBTState(NamedTuple):
 class MEPBTEmitter:
     """ME-PBT's emitter: GA crossover of repertoire agents plus a PBT population of RL agents."""
 
-    def __init__(self, agent: Agent, trainer: Trainer, space: pbt.SearchSpace, config: MEPBTConfig) -> None:
+    # The members are split over the devices (`qdrl.placement`): each trains its own.
+    state_axes = MEPBTState(population=0)  # type: ignore[arg-type]
+
+    def __init__(
+        self, agent: Agent, trainer: Trainer, space: pbt.SearchSpace, config: MEPBTConfig,
+        placement: Placement | None = None,
+    ) -> None:
         config.check()
         self.agent, self.trainer, self.space, self.config = agent, trainer, space, config
         self.batch_size = config.ga_batch_size + config.population_size
+        self.placement = placement or Placement()
 
     def init_genotypes(self, key: PRNGKey, n: int) -> AgentState:
         """`n` fresh agents (genotypes) with hyperparameters drawn from the search space."""
@@ -244,8 +252,8 @@ class MEPBTEmitter:
         values = pbt.get_hparams(pop, self.space)
         values = jnp.where(replaced[:, None], pbt.sample(hp_key, self.space, p), values)
         pop = pbt.set_hparams(pop, self.space, values)
-        pop, _ = jax.vmap(self.trainer.run_chunk)(pop)
-        return MEPBTState(population=pop)
+        pop, _ = jax.vmap(self.trainer.run_chunk)(self.placement.batched(pop))
+        return MEPBTState(population=self.placement.batched(pop))
 
 
 def agent_policy_network(agent: Agent) -> Any:
