@@ -22,7 +22,8 @@ def test_a_key_table_gives_each_key_its_default_what_it_accepts_and_its_comment(
     assert table[0] == "| key | default | accepts | meaning |"
     assert "| `repertoire.kind` | `\"grid\"` | one of 'grid', 'cvt' | regular grid (direct indexing) or CVT |" in table
     assert "| `repertoire.grid_shape` | `[32, 32]` | a list of positive integers |" in table[3]
-    assert len(table) == 2 + 7  # kind, grid_shape, num_centroids, cvt_samples, kmeans_iters, learning_rate, threshold_min
+    assert len(table) == 2 + 7  # with CMA-MAE's learning_rate and threshold_min
+    assert table[7].startswith("| `repertoire.learning_rate` | `1.0` |")
     train = docgen.keys_table(TrainConfig, "train")
     assert "| `train.learning_starts` | `10000` | an integer >= 0 |" in train
 
