@@ -94,13 +94,14 @@ def run_map_elites(run_: Any, seed: int) -> tuple[np.ndarray, float]:
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=1)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--set", action="append", default=[], help="spec overrides (smoke tests)")
     args = parser.parse_args()
     from qdrl import plotting
     from qdrl.experiment import build_run, load_spec, run
 
-    for seed in range(args.seeds):
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         spec = load_spec(SPEC, [f"experiment.seed={seed}", "log.progress=false", *args.set])
         run_, _, _ = build_run(spec)
         reference = run_.qd_task.reference_point
