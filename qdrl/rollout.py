@@ -154,12 +154,15 @@ def run_episodes(
 
 
 def fixed_start_state(env: Env, start_key: PRNGKey) -> EnvState:
-    """The state `env` resets to from `start_key`, computed now by its own small compiled
-    program (call it outside any jit/scan trace), as host (NumPy) arrays.
+    """The state `env` resets to from the concrete `start_key`, computed now by its own small
+    compiled program, also while another program is being traced, as host (NumPy) arrays.
 
     Evaluations from one fixed start (QDax's deterministic scoring) broadcast it to
     the batch instead of resetting every environment inside the evaluation: the
     evaluation's program holds no reset (a third of a brax task's program), and
     every batch size starts from the same bits.
     """
-    return jax.device_get(jax.jit(env.reset)(start_key))
+    with jax.ensure_compile_time_eval():
+        state = jax.jit(env.reset)(start_key)
+    # NumPy leaves: programs that use it hold them as constants.
+    return jax.device_get(state)

@@ -107,9 +107,18 @@ def policy_scoring_fn(
         raise ValueError(f"descriptor: expected 'final' or 'mean', got {descriptor!r}")
     if eval_batch is not None and eval_batch < 1:
         raise ValueError(f"eval_batch: expected a positive integer or None, got {eval_batch}")
-    # The one start state of every evaluation (QDax's deterministic scoring), computed now:
-    # evaluation programs broadcast it instead of resetting (see `fixed_start_state`).
-    start = fixed_start_state(env, jax.random.PRNGKey(0)) if fixed_start else None
+    # The one start state of every evaluation (QDax's deterministic scoring), computed when
+    # the first evaluation is traced: evaluation programs broadcast it instead of resetting
+    # (see `fixed_start_state`).
+    start_key = jax.random.PRNGKey(0) if fixed_start else None
+    start_states: list[Any] = []
+
+    def start_state() -> Any:
+        if start_key is None:
+            return None
+        if not start_states:
+            start_states.append(fixed_start_state(env, start_key))
+        return start_states[0]
     recorder: RecordFn | None = record
     if objectives is not None:
         user_record, objective_fn = record, objectives
@@ -123,7 +132,7 @@ def policy_scoring_fn(
         def policy(obs: jax.Array, _: PRNGKey) -> jax.Array:
             return jax.vmap(network.apply)(genotypes, obs)
 
-        return run_episodes(env, policy, key, n, num_steps, record=recorder, start_state=start)
+        return run_episodes(env, policy, key, n, num_steps, record=recorder, start_state=start_state())
 
     def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
         n = jax.tree.leaves(genotypes)[0].shape[0]
