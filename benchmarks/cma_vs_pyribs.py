@@ -4,7 +4,7 @@ Alternating runs on one machine (the order flips each seed), each in a fresh pro
 one at a time; each finished run is one JSON line of `--out` and runs already there
 are skipped (the script resumes where it stopped):
 
-    python benchmarks/cma_vs_pyribs.py --ribs-python /work/venvs/ribs/bin/python --seeds 3 \
+    python benchmarks/cma_vs_pyribs.py --ribs-python /path/to/ribs-venv/bin/python --seeds 3 \
         --out benchmarks/results/cma_vs_pyribs.jsonl
     python benchmarks/cma_vs_pyribs.py --table --out benchmarks/results/cma_vs_pyribs.jsonl
 
@@ -89,7 +89,7 @@ def table(records: list[dict[str, Any]]) -> str:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--ribs-python", default="/work/venvs/ribs/bin/python")
+    p.add_argument("--ribs-python", required=True, help="python of a virtual environment with ribs 0.12")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--algos", nargs="+", default=list(CASES), choices=list(CASES))
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cma_vs_pyribs.jsonl")

@@ -44,7 +44,7 @@ def run_qdrl(seed: int) -> dict[str, Any]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--ribs-python", default="/work/venvs/ribs/bin/python")
+    p.add_argument("--ribs-python", required=True, help="python of a virtual environment with ribs 0.12")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cma_vs_pyribs_eigen_gap.jsonl")
     args = p.parse_args()

@@ -13,9 +13,10 @@ compiled loop alone, `wall_s` includes building and compiling (with jax's
 persistent compilation cache warm after the first run of a spec, as for a user's
 second run), `process_s` includes importing jax and qdrl.
 pymoo: `minimize(problem, NSGA2(...) / SPEA2(...), ("n_evals", 25000), seed)` in
-/work/venvs/pymoo; `run_s` is `minimize` alone.
+pymoo's own virtual environment (`--pymoo-python`); `run_s` is `minimize` alone.
 
-    python benchmarks/mo_zdt_vs_pymoo.py --seeds 5 --out benchmarks/results/mo_zdt1_vs_pymoo.jsonl
+    python benchmarks/mo_zdt_vs_pymoo.py --pymoo-python /path/to/pymoo-venv/bin/python --seeds 5 \
+        --out benchmarks/results/mo_zdt1_vs_pymoo.jsonl
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-PYMOO_PYTHON = "/work/venvs/pymoo/bin/python"
+PYMOO_PYTHON = "python3"  # --pymoo-python
 POP, EVALS = 100, 25_000
 
 
@@ -103,8 +104,11 @@ def main() -> None:
     parser.add_argument("--task", default="zdt1")
     parser.add_argument("--algorithms", nargs="+", default=["nsga2", "spea2"])
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--pymoo-python", default="python3", help="python of a virtual environment with pymoo 0.6")
     parser.add_argument("--one", nargs=3, help=argparse.SUPPRESS)  # internal: qdrl ALGORITHM TASK SEED
     args = parser.parse_args()
+    global PYMOO_PYTHON
+    PYMOO_PYTHON = args.pymoo_python
     if args.one:
         algorithm, task, seed = args.one
         print(json.dumps(run_qdrl(algorithm, task, int(seed))))

@@ -7,8 +7,8 @@ baseline for `benchmarks/qdax_pga_me_vs_map_elites.py`.
 QDax's Q-PG emitter imports `brax.v1`, which left brax in 0.12.4, so this runs only
 in a virtual environment with QDax's old pins. The one used here was made with
 
-    python3.11 -m venv /work/qdax-old-venv
-    P=/work/qdax-old-venv/bin/pip
+    python3.11 -m venv /path/to/qdax-venv
+    P=/path/to/qdax-venv/bin/pip
     $P install "jax[cpu]==0.4.28" "jaxlib==0.4.28" "flax==0.8.5" "optax==0.2.2" "chex==0.1.86" \
         "numpy==1.26.4" "scipy==1.13.1" "orbax-checkpoint==0.5.20" "ml-dtypes==0.4.0"
     $P install --no-deps "brax==0.10.4" "mujoco==3.1.6" "mujoco-mjx==3.1.6" "qdax==0.5.0"
@@ -19,7 +19,7 @@ in a virtual environment with QDax's old pins. The one used here was made with
 (resolving `qdax==0.5.0` with its dependencies instead makes pip backtrack for many
 minutes over mujoco-mjx versions that need a newer jax). Run it as
 
-    /work/qdax-old-venv/bin/python benchmarks/qdax_pga_me.py --task halfcheetah_uni --seed 0
+    /path/to/qdax-venv/bin/python benchmarks/qdax_pga_me.py --task halfcheetah_uni --seed 0
 
 Matched with qdrl (`agents/pga_me_halfcheetah_uni_cpu.toml`): spring backend,
 episodes of 100 steps, every policy evaluated from one fixed initial state,

@@ -1,7 +1,7 @@
 """QDax 0.5.0's own PGA-ME against its own MAP-Elites on halfcheetah_uni, at the CPU budget.
 
-    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /work/qdax-old-venv/bin/python --seeds 3
-    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /work/qdax-old-venv/bin/python \
+    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /path/to/qdax-venv/bin/python --seeds 3
+    python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python /path/to/qdax-venv/bin/python \
         --first-seed 3 --seeds 2
 
 (the recorded file: seeds 0-2, then seeds 3 and 4 added; `--seeds 0` only re-summarises and re-plots).
