@@ -10,8 +10,8 @@ with 2 iterations (the compiled program is a scan: its length does not change it
 compile time). Records wall and process CPU time of the compilation; the CPU time
 is the steadier figure when other jobs share the cores. No persistent compilation
 cache on either side. QDax's halfcheetah figure leaves out its eager reset of the
-environment (`reset_s`); qdrl computes its start state when the task is built,
-also outside the timed program.
+environment (`reset_s`); qdrl computes its start state in its own small program
+while the initial population's evaluation is traced, also outside the timed one.
 """
 
 from __future__ import annotations
