@@ -34,6 +34,8 @@ SPECS: dict[str, tuple[str, float | None]] = {
     "map_elites_line_lp_sphere": ("MAP-Elites (line), LP sphere 100-D", 49.07),
     "cma_me_lp_sphere": ("CMA-ME, LP sphere 100-D", 36.50),
     "cma_mae_lp_sphere": ("CMA-MAE (alpha 0.01), LP sphere 100-D", 64.86),
+    "me_map_elites_lp_sphere": ("Multi-Emitter MAP-Elites (bandit over 60 CMA and GA emitters), LP sphere 100-D", None),
+    "cma_maega_lp_sphere": ("CMA-MAEGA (alpha 0.01), LP sphere 1000-D", None),
     "omg_mega_lp_sphere": ("OMG-MEGA, LP sphere 1000-D", 71.58),
     "cma_mega_lp_sphere": ("CMA-MEGA, LP sphere 1000-D", 75.29),
     "cma_mega_adam_lp_sphere": ("CMA-MEGA (Adam), LP sphere 1000-D", None),

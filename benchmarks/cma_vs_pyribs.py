@@ -40,17 +40,18 @@ def _last_json(text: str) -> dict[str, Any]:
     raise ValueError(f"no JSON line in {text[-300:]!r}")
 
 
-def run_qdrl(algo: str, seed: int) -> dict[str, Any]:
+def run_qdrl(algo: str, seed: int, sets: tuple[str, ...] = ()) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "qdrl.cli", "run", str(ROOT / "agents" / f"{CASES[algo]}.toml"),
-               "--set", f"experiment.seed={seed}", "--set", "log.progress=false", "--set", "log.plots=false",
-               "--out", str(Path(tmp) / "run")]
+               "--set", f"experiment.seed={seed}", *(a for x in sets for a in ("--set", x)),
+               "--set", "log.progress=false", "--set", "log.plots=false", "--out", str(Path(tmp) / "run")]
         t0 = time.perf_counter()
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
         process_s = time.perf_counter() - t0
         summary = json.loads((Path(tmp) / "run" / "summary.json").read_text())
     return {"normalised_qd_score": summary["normalised_qd_score"], "iterations": summary["iteration"],
-            "loop_s": summary["run_s"], "compile_s": summary["compile_s"], "process_s": process_s}
+            "loop_s": summary["run_s"], "compile_s": summary["compile_s"], "process_s": process_s,
+            **({"set": list(sets)} if sets else {})}
 
 
 def run_pyribs(python: str, algo: str, seed: int) -> dict[str, Any]:
@@ -93,6 +94,8 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--algos", nargs="+", default=list(CASES), choices=list(CASES))
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cma_vs_pyribs.jsonl")
+    p.add_argument("--set", action="append", default=[],
+                   help="a --set override for qdrl's runs (e.g. emitter.eigen_gap=evaluations)")
     p.add_argument("--table", action="store_true")
     args = p.parse_args()
     done = [json.loads(line) for line in args.out.read_text().splitlines()] if args.out.exists() else []
@@ -107,7 +110,8 @@ def main() -> None:
                 if any(r["algo"] == algo and r["seed"] == seed and r["side"] == side for r in done):
                     continue
                 load = os.getloadavg()[0]
-                rec = run_qdrl(algo, seed) if side == "qdrl" else run_pyribs(args.ribs_python, algo, seed)
+                rec = (run_qdrl(algo, seed, tuple(args.set)) if side == "qdrl"
+                       else run_pyribs(args.ribs_python, algo, seed))
                 rec.update(algo=algo, seed=seed, side=side, load_before=load, load_after=os.getloadavg()[0],
                            env=env_note)
                 done.append(rec)

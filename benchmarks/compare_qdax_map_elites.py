@@ -1,6 +1,6 @@
 """MAP-Elites on the arm, qdrl against QDax 0.5.0: speed, compile time and HLO, side by side.
 
-    python benchmarks/compare_qdax_map_elites.py --qdax-python /work/venvs/qdax/bin/python
+    python benchmarks/compare_qdax_map_elites.py --qdax-python /path/to/qdax-venv/bin/python
 
 For each seed and each container (CVT 1024, grid 32x32, grid 100x100) it runs
 qdrl's `time_map_elites` (what `qdrl bench map_elites --config C` runs) and

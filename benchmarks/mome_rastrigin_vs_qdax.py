@@ -8,7 +8,7 @@ polynomial crossover (half the genes), 1000 iterations after a first batch of 10
 each library does by default) and log every 100 iterations.
 
 qdrl runs `agents/mome_mo_rastrigin.toml` through `qdrl.experiment.run` (overflow
-"crowding", its default, and "index", QDax's rule); QDax runs in /work/venvs/qdax.
+"crowding", its default, and "index", QDax's rule); QDax runs in its own virtual environment (`--qdax-python`).
 The final repertoires' fitnesses (64, 50, 2) of both are scored by the same code
 (`qdrl.qd.pareto.hypervolume_exact`, moocore): MOQD score (sum of the cells'
 hypervolumes) and global hypervolume, w.r.t. QDax's reference (-150, -150), which no
@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-QDAX_PYTHON = "/work/venvs/qdax/bin/python"
 # QDax's reference point, and one the runs reach: with 100 genes no solution gets above
 # (-150, -150) (per gene, rastrigin(x) + rastrigin(x - 2.2) >= 6.24, so f1 + f2 <= -624), so
 # every MOQD score and hypervolume w.r.t. it is 0; (-1500, -1500) is 15 below the optimum per gene.
@@ -116,12 +115,15 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--qdax-python", help="python of a virtual environment with QDax 0.5.0")
     parser.add_argument("--iterations", type=int, default=1000)
     parser.add_argument("--one", nargs=2, help=argparse.SUPPRESS)  # internal: SEED OVERFLOW
     args = parser.parse_args()
     if args.one:
         print(json.dumps(run_qdrl(int(args.one[0]), args.one[1])))
         return
+    if args.qdax_python is None:
+        parser.error("--qdax-python is required (the python of QDax 0.5.0's virtual environment)")
     import numpy as np
 
     from qdrl.qd.pareto import hypervolume_exact
@@ -130,7 +132,7 @@ def main() -> None:
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         for impl in ("qdrl", "qdax", "qdrl_index"):  # alternating
             if impl == "qdax":
-                cmd = [QDAX_PYTHON, "-c", QDAX_CODE, str(seed), str(args.iterations), "100"]
+                cmd = [args.qdax_python, "-c", QDAX_CODE, str(seed), str(args.iterations), "100"]
                 qdax_env = {k: v for k, v in env.items() if k != "PYTHONPATH"}
                 out = subprocess.run(cmd, capture_output=True, text=True, check=True, env=qdax_env)
             else:

@@ -1,6 +1,6 @@
 """PGA-ME on halfcheetah_uni, qdrl against QDax 0.5.0 (its old-pins venv), same settings.
 
-    python benchmarks/pga_me_compare_qdax.py --qdax-python /work/qdax-old-venv/bin/python
+    python benchmarks/pga_me_compare_qdax.py --qdax-python /path/to/qdax-venv/bin/python
 
 qdrl runs `agents/pga_me_halfcheetah_uni_cpu.toml` through `qdrl run` with
 `qd.log_every = qd.num_iterations`, so its iterations are ONE compiled `lax.scan`,

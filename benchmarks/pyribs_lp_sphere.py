@@ -2,8 +2,8 @@
 
 Runs in its own venv (pyribs is no qdrl dependency):
 
-    python3.11 -m venv /work/venvs/ribs && /work/venvs/ribs/bin/pip install "ribs==0.12.*"
-    /work/venvs/ribs/bin/python benchmarks/pyribs_lp_sphere.py --algo cma_me --budget 600 \
+    python3.11 -m venv ribs-venv && ribs-venv/bin/pip install "ribs==0.12.*"
+    ribs-venv/bin/python benchmarks/pyribs_lp_sphere.py --algo cma_me --budget 600 \
         --out benchmarks/results/cma_lp_sphere_pyribs.jsonl
 
 Settings of `benchmarks/cma_lp_sphere.py` and the specs in agents/ (and pyribs'

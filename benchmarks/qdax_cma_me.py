@@ -10,7 +10,7 @@ layer: `cma_me` with a `[[emitters]]` pool of 3 `cma_improvement` instances
 (ranker 2imp, mu selection, no_improvement restarts, as QDax's improvement
 emitter) under the bandit scheduler with one active instance.
 
-    python benchmarks/qdax_cma_me.py --qdax-python /work/venvs/qdax/bin/python --seeds 3 \
+    python benchmarks/qdax_cma_me.py --qdax-python /path/to/qdax-venv/bin/python --seeds 3 \
         --out benchmarks/results/cma_me_vs_qdax.jsonl
 
 Each side prints one JSON line: compile and run seconds, QD score (sum of the
@@ -119,7 +119,7 @@ def side_qdrl(seed: int, iterations: int) -> dict[str, Any]:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--side", choices=["qdax", "qdrl"], help="run one side in this process and print it")
-    p.add_argument("--qdax-python", default="/work/venvs/qdax/bin/python")
+    p.add_argument("--qdax-python", help="python of a virtual environment with QDax 0.5.0 (required unless --side qdrl)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--seed", type=int, default=0, help="with --side: the seed of that run")
     p.add_argument("--iterations", type=int, default=2000)
@@ -129,6 +129,8 @@ def main() -> None:
         fn = side_qdax if args.side == "qdax" else side_qdrl
         print(json.dumps({"side": args.side, **fn(args.seed, args.iterations)}))
         return
+    if args.qdax_python is None:
+        p.error("--qdax-python is required (the python of QDax 0.5.0's virtual environment)")
     done = [json.loads(line) for line in args.out.read_text().splitlines()] if args.out.exists() else []
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
     env["JAX_PLATFORMS"] = "cpu"

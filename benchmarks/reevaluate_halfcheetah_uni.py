@@ -1,6 +1,6 @@
 """Stored against corrected QD metrics of MAP-Elites and PGA-ME on halfcheetah_uni (CPU specs).
 
-    python benchmarks/reevaluate_halfcheetah_uni.py --seeds 0 1 --samples 32 --runs-dir /work/runs_bench
+    python benchmarks/reevaluate_halfcheetah_uni.py --seeds 0 1 --samples 32 --runs-dir runs_bench
 
 For each algorithm and seed, runs `agents/<algorithm>_halfcheetah_uni_cpu.toml` with
 `qdrl run` into `--runs-dir/<algorithm>_halfcheetah_uni_cpu_s<seed>` (a finished run

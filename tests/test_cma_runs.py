@@ -123,6 +123,10 @@ def _spec(name: str, **sections: dict[str, Any]) -> dict[str, Any]:
         ("me_map_elites_lp_sphere", "scheduler", {"num_active": 9}, "scheduler.num_active: expected an integer in [1, 8] (the pool's instances), got 9"),
         ("me_map_elites_lp_sphere", "scheduler", {"zeta": -1.0}, "scheduler.zeta: expected a number >= 0, got -1.0"),
         ("cma_es_sphere", "cma_es", {"sigma0": 0.0}, "cma_es.sigma0: expected a number > 0, got 0.0"),
+        ("cma_mae_lp_sphere", "emitter", {"eigen_gap": "sometimes"},
+         "emitter.eigen_gap: expected a positive integer or one of 'generations', 'evaluations', got 'sometimes'"),
+        ("cma_es_sphere", "cma_es", {"eigen_gap": 0},
+         "cma_es.eigen_gap: expected a positive integer or one of 'generations', 'evaluations', got 0"),
         ("cma_es_sphere", "cma_es", {"population_size": 1}, "cma_es.population_size: expected 0 (the default) or an integer >= 2, got 1"),
     ],
 )
@@ -193,6 +197,11 @@ def test_algorithm_names_are_defaults_of_one_run() -> None:
     opt, _, _ = build_run({**base, "emitter": {"kind": "cma_optimizing"}})
     assert (opt.sections["emitter"].ranker, opt.sections["emitter"].restart_rule) == ("obj", "no_improvement")
     assert "normalised_qd_score" in run.progress_keys
+    # the covariance is decomposed on the generations rule unless the spec says otherwise
+    assert emitter.eigen_gap == "generations"
+    for gap in ("evaluations", 7):
+        other, _, _ = build_run({**base, "emitter": {"eigen_gap": gap}})
+        assert other.sections["emitter"].eigen_gap == gap
 
 
 def test_the_resolved_pool_spec_reads_back_the_same(tmp_path: Path) -> None:

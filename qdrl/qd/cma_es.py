@@ -39,18 +39,20 @@ Two sets of update equations (`update_rule`):
 - "tutorial": Hansen 2016's equations as written above.
 
 The eigendecomposition C = B diag(D^2) B^T behind sampling and C^(-1/2) is lazy.
-By default it follows pyribs and purecma: refreshed once more than
-0.5 lambda / (n (c_1 + c_mu)) EVALUATIONS (lambda / 2 parents' rates) have passed
-since the last, i.e. every floor(that / lambda) + 1 generations (3 for n = 100,
-lambda = 36). `eigen_gap` sets the number of generations instead; QDax counts
-the same number in generations (`eigen_gap=106` for n = 100, lambda = 36).
+By default ("generations") it is refreshed once ceil(0.5 lambda / (n (c_1 + c_mu)))
+generations have passed since the last (Hansen's rule of thumb, as QDax counts it:
+every 101 generations for n = 100, lambda = 36). "evaluations" follows pyribs'
+and purecma's code, which count the same number in EVALUATIONS: refreshed once
+more than that many evaluations have passed, i.e. every floor(that / lambda) + 1
+generations (3 for n = 100, lambda = 36). An integer `eigen_gap` sets the number
+of generations.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -65,6 +67,8 @@ MIN_AREA = 1e-11  # sigma * sqrt(largest eigenvalue) below this: the search has 
 MAX_SIGMA_FACTOR = 1e20  # sigma / sigma0 * sqrt(largest eigenvalue) above this: it diverges
 FLAT_FITNESS = 1e-12
 UPDATE_RULES = ("pyribs", "tutorial")
+EigenGapRule = Literal["generations", "evaluations"]
+EIGEN_GAP_RULES = ("generations", "evaluations")
 
 
 class CMAESState(NamedTuple):
@@ -111,8 +115,9 @@ class CMAES:
       population_size: lambda, solutions per generation (default 4 + floor(3 ln n)).
       sigma0: initial step size, > 0.
       separable: sep-CMA-ES (diagonal covariance, O(n) memory and time).
-      eigen_gap: generations between eigendecompositions; None for pyribs' gap
-        (more than 0.5 lambda / (n (c_1 + c_mu)) evaluations).
+      eigen_gap: generations between eigendecompositions, or "generations" (the
+        default: ceil(0.5 lambda / (n (c_1 + c_mu)))) or "evaluations" (pyribs':
+        more than that many evaluations).
       update_rule: "pyribs" (the reference's equations) or "tutorial" (Hansen 2016).
     """
 
@@ -120,7 +125,7 @@ class CMAES:
     population_size: int | None = None
     sigma0: float = 1.0
     separable: bool = False
-    eigen_gap: int | None = None
+    eigen_gap: int | EigenGapRule = "generations"
     update_rule: str = "pyribs"
 
     def __post_init__(self) -> None:
@@ -134,10 +139,12 @@ class CMAES:
             )
         if not (math.isfinite(self.sigma0) and self.sigma0 > 0):
             raise ValueError(f"sigma0: expected a finite number > 0, got {self.sigma0!r}")
-        if self.eigen_gap is not None and not (
-            isinstance(self.eigen_gap, int) and self.eigen_gap >= 1
+        if self.eigen_gap not in EIGEN_GAP_RULES and not (
+            isinstance(self.eigen_gap, int) and not isinstance(self.eigen_gap, bool) and self.eigen_gap >= 1
         ):
-            raise ValueError(f"eigen_gap: expected a positive integer or None, got {self.eigen_gap!r}")
+            raise ValueError(
+                f"eigen_gap: expected a positive integer, 'generations' or 'evaluations', got {self.eigen_gap!r}"
+            )
         if self.update_rule not in UPDATE_RULES:
             raise ValueError(f"update_rule: expected one of {list(UPDATE_RULES)}, got {self.update_rule!r}")
 
@@ -170,8 +177,8 @@ class CMAES:
 
     @property
     def eigen_period(self) -> int:
-        """Generations between eigendecompositions: `eigen_gap`, else pyribs' (see the module docstring)."""
-        if self.eigen_gap is not None:
+        """Generations between eigendecompositions (`eigen_gap`; see the module docstring)."""
+        if isinstance(self.eigen_gap, int):
             return self.eigen_gap
         # Plain floats: this is static (shapes, loop lengths), not traced.
         mu = self.lam // 2
@@ -183,8 +190,10 @@ class CMAES:
         if self.separable:
             c_1 *= (n + 2.0) / 3.0
             c_mu = min(1.0 - c_1, c_mu * (n + 2.0) / 3.0)
-        gap_evaluations = 0.5 * self.lam / (n * (c_1 + c_mu))
-        return math.floor(gap_evaluations / self.lam) + 1
+        gap = 0.5 * self.lam / (n * (c_1 + c_mu))
+        if self.eigen_gap == "evaluations":
+            return math.floor(gap / self.lam) + 1
+        return max(1, math.ceil(gap))
 
     def init(self, mean: Array, sigma: Array | float | None = None) -> CMAESState:
         """A fresh search around `mean` (n,): C = I, sigma = sigma0, zero paths. Also the restart."""

@@ -50,22 +50,29 @@ def _concat(a: Genotype, b: Genotype) -> Genotype:
 
 
 def spea2_fitness(points: Array, mask: Array, k: int) -> tuple[Array, Array]:
-    """SPEA2's fitness F = R + D (lower is better) and the (n, n) distances in objective space.
+    """SPEA2's fitness F = R + D (lower is better) and the (n, n) SQUARED distances in objective space.
 
-    Non-members get F = +inf and distances +inf.
+    Non-members get F = +inf and distances +inf. (The truncation only compares
+    distances, which squaring keeps in order: the square root is taken of the k-th
+    nearest alone.)
     """
     dom = dominance_matrix(points, mask)
     strength = jnp.sum(dom, axis=1).astype(jnp.float32)  # solutions each one dominates
     raw = jnp.sum(jnp.where(dom, strength[:, None], 0.0), axis=0)  # strengths of its dominators
     diff = points[:, None, :] - points[None, :, :]
-    dist = jnp.sqrt(jnp.sum(diff * diff, axis=-1))
+    sq_dist = jnp.sum(diff * diff, axis=-1)
     n = points.shape[0]
     pair = mask[:, None] & mask[None, :] & ~jnp.eye(n, dtype=bool)
-    dist = jnp.where(pair, dist, jnp.inf)
-    # the k-th smallest of each row: top_k of the negated row costs less than a full sort
-    kth = -jax.lax.top_k(-dist, min(k, n - 1))[0][:, -1] if n > 1 else jnp.full((n,), jnp.inf)
+    sq_dist = jnp.where(pair, sq_dist, jnp.inf)
+    if n > 1:
+        # The k-th smallest of each row, as the smallest of the k largest of the negated row:
+        # XLA:CPU keeps this a TopK call (0.2 ms for 200 x 200), while slicing one column of
+        # top_k's output is rewritten into a full sort of every row (3.2 ms).
+        kth = jnp.sqrt(-jnp.min(jax.lax.top_k(-sq_dist, min(k, n - 1))[0], axis=1))
+    else:
+        kth = jnp.full((n,), jnp.inf)
     density = 1.0 / (jnp.where(jnp.isfinite(kth), kth, 0.0) + 2.0)
-    return jnp.where(mask, raw + density, jnp.inf), dist
+    return jnp.where(mask, raw + density, jnp.inf), sq_dist
 
 
 _Truncation = tuple[Array, Array, Array, Array, Array]  # alive, candidates, last value, uses, j
@@ -105,7 +112,9 @@ def _spea2_truncate(points: Array, dist: Array, keep: Array, size: int) -> Array
 
     def remove(c: _Truncation) -> _Truncation:
         alive, cand = c[0], c[1]
-        return first(alive.at[jnp.argmax(cand)].set(False))
+        # The closest pair ties on the first column whatever the rest: read the second at
+        # once (narrowing a single candidate keeps it), one loop step per removal instead of two.
+        return narrow(first(alive.at[jnp.argmax(cand)].set(False)))
 
     def step(c: _Truncation) -> _Truncation:
         cand = c[1]
@@ -113,7 +122,7 @@ def _spea2_truncate(points: Array, dist: Array, keep: Array, size: int) -> Array
         tie = (jnp.sum(cand) > 1) & (c[4] < n) & ~clones
         return jax.lax.cond(tie, narrow, remove, c)
 
-    return jax.lax.while_loop(lambda c: jnp.sum(c[0]) > size, step, first(keep))[0]
+    return jax.lax.while_loop(lambda c: jnp.sum(c[0]) > size, step, narrow(first(keep)))[0]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

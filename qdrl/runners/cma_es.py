@@ -26,7 +26,7 @@ from jax.flatten_util import ravel_pytree
 from qdrl.config import NonNegativeInt, PositiveFloat, PositiveInt, build
 from qdrl.experiment import ExperimentConfig, Sections, register
 from qdrl.lapack_threads import single_threaded_lapack
-from qdrl.qd.cma_es import CMAES, CMAESState
+from qdrl.qd.cma_es import CMAES, CMAESState, EigenGapRule
 from qdrl.runners.qd import make_task_of, parse_task
 from qdrl.types import Array
 
@@ -40,7 +40,9 @@ class CMAESConfig:
     population_size: NonNegativeInt = 0  # lambda; 0: 4 + floor(3 ln n)
     sigma0: PositiveFloat = 0.3  # initial step size (in genotype units) of every (re)start
     separable: bool = False  # sep-CMA-ES: diagonal covariance, for thousands of parameters
-    eigen_gap: PositiveInt | None = None  # generations between eigendecompositions; omitted: pyribs'
+    # Generations between eigendecompositions, or 0.5 lambda / (n (c_1 + c_mu)) counted in
+    # "generations" (Hansen's rule, QDax's) or in "evaluations" (pyribs' code).
+    eigen_gap: PositiveInt | EigenGapRule = "generations"
     update_rule: Literal["pyribs", "tutorial"] = "pyribs"
     restarts: bool = True  # start again from a random genotype when a stop condition fires
 

@@ -144,17 +144,23 @@ def test_two_generations_match_pyribs_equations() -> None:
     assert abs(float(t_state.sigma) - float(p_state.sigma)) > 0.01
 
 
-def test_the_eigendecomposition_gap_is_pyribs_in_evaluations_unless_given() -> None:
-    # n = 100, lambda = 36: 0.5 * 36 / (100 (c_1 + c_mu)) = 105 evaluations, i.e. every 3 generations
-    assert CMAES(num_dims=100, population_size=36).eigen_period == 3
+def test_the_eigendecomposition_gap_counts_generations_unless_told_evaluations() -> None:
+    # n = 100, lambda = 36: mu_eff = 10.24, c_1 = 1.94e-4, c_mu = 1.604e-3, so
+    # 0.5 * 36 / (100 (c_1 + c_mu)) = 100.16: every 101 generations (QDax's comparison);
+    # pyribs counts the same 100.16 in evaluations: every floor(100.16 / 36) + 1 = 3 generations.
+    assert CMAES(num_dims=100, population_size=36).eigen_period == 101
+    assert CMAES(num_dims=100, population_size=36, eigen_gap="evaluations").eigen_period == 3
     assert CMAES(num_dims=100, population_size=36, eigen_gap=106).eigen_period == 106
-    assert CMAES(num_dims=3, population_size=35).eigen_period == 1
-    es = CMAES(num_dims=100, population_size=36)
-    state = es.init(jnp.zeros(100))
-    x = es.sample(state, jax.random.PRNGKey(0))
-    for gen in range(1, 7):
-        state = es.update(state, x, 18)
-        assert int(state.decomposed_at) == 3 * (gen // 3), gen
+    assert CMAES(num_dims=3, population_size=35, eigen_gap="evaluations").eigen_period == 1
+    # n = 3, lambda = 35: c_1 = 0.0709, c_mu = 0.4503, 0.5 * 35 / (3 (c_1 + c_mu)) = 11.19
+    assert CMAES(num_dims=3, population_size=35).eigen_period == 12
+    for rule, period in (("evaluations", 3), (5, 5)):
+        es = CMAES(num_dims=100, population_size=36, eigen_gap=rule)
+        state = es.init(jnp.zeros(100))
+        x = es.sample(state, jax.random.PRNGKey(0))
+        for gen in range(1, 12):
+            state = es.update(state, x, 18)
+            assert int(state.decomposed_at) == period * (gen // period), (rule, gen)
 
 
 def _minimise_sphere(es: CMAES, mean0: jax.Array, generations: int, key: jax.Array):  # type: ignore[no-untyped-def]

@@ -41,7 +41,7 @@ from jax.flatten_util import ravel_pytree
 
 from qdrl.config import OneOf, PositiveFloat, PositiveInt, Range, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
-from qdrl.qd.cma_es import CMAES, CMAESState
+from qdrl.qd.cma_es import CMAES, CMAESState, EigenGapRule
 from qdrl.qd.emitters.rankers import (
     RANKERS,
     Outcome,
@@ -105,8 +105,9 @@ class CMAEmitterConfig:
     selection_rule: SelectionRule = "filter"  # "filter": accepted offspring recombine; "mu": the best half
     restart_rule: RestartRule = "no_improvement"
     separable: bool = False  # sep-CMA-ES: diagonal covariance, for thousands of parameters
-    # Generations between eigendecompositions; omitted: pyribs' gap, counted in evaluations.
-    eigen_gap: PositiveInt | None = None
+    # Generations between eigendecompositions, or the rule 0.5 lambda / (n (c_1 + c_mu)) counted
+    # in "generations" (Hansen's, QDax's) or in "evaluations" (pyribs' code: lambda times as often).
+    eigen_gap: PositiveInt | EigenGapRule = "generations"
     update_rule: UpdateRule = "pyribs"  # CMA-ES equations: pyribs' (the reference) or Hansen's tutorial
 
     def __post_init__(self) -> None:
