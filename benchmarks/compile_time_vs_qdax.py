@@ -1,13 +1,15 @@
 """Compile time of one MAP-Elites program, qdrl against QDax 0.5.0, side by side.
 
-    python benchmarks/compile_time_vs_qdax.py --qdax-python /path/to/qdax-venv/bin/python --repeats 2
+    python benchmarks/compile_time_vs_qdax.py --qdax-python /path/to/qdax-venv/bin/python --repeats 4
 
 Each side compiles the same program ahead of time in a fresh process, alternating
 which goes first: the 100-DoF arm (CVT 1024, batch 1024) and halfcheetah_uni
 (episodes of 100 steps, batch 128, CVT 1024), as `qdrl bench` and the QDax scripts
-beside this one time them (`compare_qdax_map_elites.py`, `compare_qdax_brax.py`),
-with 2 iterations (the compiled program is a scan: its length does not change its
-compile time). Records wall and process CPU time of the compilation; the CPU time
+beside this one time them (`compare_qdax_map_elites.py`, `compare_qdax_brax.py`):
+the scan of 200 iterations (arm) or 50 (halfcheetah_uni) those benchmarks time. (A
+scan of 2 iterations is unrolled by XLA, which compiles the step twice.) Each
+process then runs its program once. Records wall and process CPU time of the
+compilation (mean and standard deviation over the repeats); the CPU time
 is the steadier figure when other jobs share the cores. No persistent compilation
 cache on either side. QDax's halfcheetah figure leaves out its eager reset of the
 environment (`reset_s`); qdrl computes its start state in its own small program
@@ -26,9 +28,9 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve().parent
-QDRL_ARM = "from qdrl.bench import time_map_elites as t; import json; print(json.dumps(t('cvt1024', iterations=2, hlo=False)))"
+QDRL_ARM = "from qdrl.bench import time_map_elites as t; import json; print(json.dumps(t('cvt1024', iterations=200, hlo=False)))"
 QDRL_CHEETAH = ("from qdrl.bench import time_policy_map_elites as t; import json; "
-                "print(json.dumps(t('halfcheetah_uni', iterations=2)))")
+                "print(json.dumps(t('halfcheetah_uni', iterations=50)))")
 
 
 def _run(cmd: list[str], env: dict[str, str]) -> dict[str, Any]:
@@ -49,11 +51,11 @@ def main() -> None:
     commands = {
         "arm": {
             "qdrl": [sys.executable, "-c", QDRL_ARM],
-            "qdax": [args.qdax_python, str(HERE / "qdax_map_elites_arm.py"), "--iterations", "2"],
+            "qdax": [args.qdax_python, str(HERE / "qdax_map_elites_arm.py"), "--iterations", "200"],
         },
         "halfcheetah_uni": {
             "qdrl": [sys.executable, "-c", QDRL_CHEETAH],
-            "qdax": [args.qdax_python, str(HERE / "qdax_map_elites_brax.py"), "--iterations", "2"],
+            "qdax": [args.qdax_python, str(HERE / "qdax_map_elites_brax.py"), "--iterations", "50"],
         },
     }
     runs: list[dict[str, Any]] = []
@@ -71,6 +73,9 @@ def main() -> None:
         for side in ("qdrl", "qdax"):
             rs = [x for x in runs if x["task"] == task and x["side"] == side]
             s[side] = {k: round(statistics.mean(x[k] for x in rs), 2) for k in ("compile_s", "compile_cpu_s")}
+            if len(rs) > 1:
+                s[side].update({f"{k}_std": round(statistics.stdev(x[k] for x in rs), 2)
+                                for k in ("compile_s", "compile_cpu_s")})
         s["cpu_ratio_qdrl_over_qdax"] = round(s["qdrl"]["compile_cpu_s"] / s["qdax"]["compile_cpu_s"], 3)
         s["wall_ratio_qdrl_over_qdax"] = round(s["qdrl"]["compile_s"] / s["qdax"]["compile_s"], 3)
         summary[task] = s

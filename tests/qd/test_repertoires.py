@@ -775,16 +775,50 @@ def test_cvt_lookup_grid_is_exact_and_used() -> None:
 
 
 def test_cvt_search_is_chosen_per_backend_when_lowered() -> None:
-    """CPU: the lookup grid (gathers, and a lax.cond for points outside the box);
-    GPU: the direct search, with no conditional (a host round trip on a GPU)."""
-    centroids = cvt_centroids(jax.random.PRNGKey(3), 64, 2_000, (0.0, 0.0), (1.0, 1.0))
+    """CPU: the lookup grid (gathers; in 2-D no conditional, the hull is searched for every
+    row); GPU: the direct search, with no conditional (a host round trip on a GPU)."""
+    centroids = cvt_centroids(jax.random.PRNGKey(3), 1024, 20_000, (0.0, 0.0), (1.0, 1.0))
     rep = cvt_repertoire(None, centroids, (0.0, 0.0), (1.0, 1.0))
-    points = jnp.zeros((8, 2))
+    assert rep.lookup_hull is not None and 4 * rep.lookup_hull.shape[0] <= 1024
 
-    def lowered(platform: str) -> str:
-        traced = jax.jit(rep.cell_index).trace(points)
+    def lowered(r: CellRepertoire, platform: str) -> str:
+        traced = jax.jit(r.cell_index).trace(jnp.zeros((8, r.descriptor_dim)))
         return traced.lower(lowering_platforms=(platform,)).as_text(dialect="hlo")
 
-    cpu, cuda = lowered("cpu"), lowered("cuda")
-    assert " conditional(" in cpu and " gather(" in cpu
+    cpu, cuda = lowered(rep, "cpu"), lowered(rep, "cuda")
+    assert " conditional(" not in cpu and " gather(" in cpu
     assert " conditional(" not in cuda and " gather(" not in cuda and " dot(" not in cuda
+    # 3-D: the hull is most of the centroids, searched only when some row is outside the box
+    c3 = cvt_centroids(jax.random.PRNGKey(3), 256, 5_000, (0.0,) * 3, (1.0,) * 3)
+    rep3 = cvt_repertoire(None, c3, (0.0,) * 3, (1.0,) * 3)
+    assert rep3.lookup_hull is not None and 4 * rep3.lookup_hull.shape[0] > 256
+    assert " conditional(" in lowered(rep3, "cpu")
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_cvt_lookup_is_exact_far_outside_the_box_and_with_centroids_outside(dim: int) -> None:
+    """The lookup grid's search against exact float64 distances: points far outside the box,
+    at its corners and on ties; centroids outside the box."""
+    from qdrl.qd.repertoires.lookup import brute_nearest
+
+    key = jax.random.PRNGKey(dim)
+    inner = cvt_centroids(key, 200, 4_000, (0.0,) * dim, (1.0,) * dim)
+    # three centroids outside the box, which points inside it may also be nearest to
+    centroids = jnp.concatenate([inner, jnp.asarray([[-0.2] * dim, [1.5] * dim, [0.5] * (dim - 1) + [-3.0]])])
+    rep = cvt_repertoire(None, centroids, (0.0,) * dim, (1.0,) * dim)
+    assert rep.lookup is not None
+    k1, k2 = jax.random.split(key)
+    near = jax.random.uniform(k1, (3_000, dim), minval=-0.5, maxval=1.5)
+    far = jax.random.normal(k2, (1_000, dim)) * 50.0
+    corners = jnp.asarray(np.stack(np.meshgrid(*[[-1e3, 0.0, 1.0, 1e3]] * dim), -1).reshape(-1, dim), jnp.float32)
+    # exact ties: midpoints of pairs of centroids, on both sides of the box's boundary
+    ties = 0.5 * (centroids[:50] + centroids[50:100]) * 3.0 - 1.0
+    points = jnp.concatenate([near, far, corners, ties])
+    got = np.asarray(jax.jit(rep.cell_index)(points))
+    want = np.asarray(brute_nearest(points, centroids))
+    p, c = np.asarray(points, np.float64), np.asarray(centroids, np.float64)
+    d_got, d_want = ((p - c[got]) ** 2).sum(-1), ((p - c[want]) ** 2).sum(-1)
+    np.testing.assert_allclose(d_got, d_want, rtol=1e-5, atol=1e-9)
+    # the brute force's expansion |c|^2 - 2 p.c rounds differently far away: compare exactly in float64
+    exact = np.argmin(((p[:, None, :] - c[None]) ** 2).sum(-1), axis=1)
+    assert np.mean(got == exact) > 0.995

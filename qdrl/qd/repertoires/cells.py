@@ -252,9 +252,10 @@ class CellRepertoire:
         centroids (which also define the cells).
       grid_shape: bins per descriptor dimension for a grid; None for a CVT archive.
       low, high: the grid's descriptor bounds (D floats each); None for a CVT archive.
-      lookup_table, lookup_grid: for a low-dimensional CVT archive built with bounds,
-        the lookup grid (candidate centroids per lookup cell; its shape and box) that
-        makes the exact nearest-centroid search cheap (`lookup.py`); else None.
+      lookup_table, lookup_hull, lookup_grid: for a low-dimensional CVT archive built
+        with bounds, the lookup grid (candidate centroids per lookup cell, those of
+        points outside the box; its shape and box) that makes the exact
+        nearest-centroid search cheap (`lookup.py`); else None.
       thresholds, learning_rate, threshold_min: CMA-MAE's archive (see
         `with_learning_rate`): (C,) float32 acceptance thresholds kept apart from
         the elites, the archive learning rate alpha and the thresholds' start
@@ -269,6 +270,7 @@ class CellRepertoire:
     low: tuple[float, ...] | None = None
     high: tuple[float, ...] | None = None
     lookup_table: Array | None = None
+    lookup_hull: Array | None = None
     lookup_grid: tuple[tuple[int, ...], tuple[float, ...], tuple[float, ...]] | None = None
     thresholds: Array | None = None
     learning_rate: float | None = None
@@ -277,9 +279,9 @@ class CellRepertoire:
     @property
     def lookup(self) -> Lookup | None:
         """The CVT lookup grid (candidates per lookup cell), when there is one."""
-        if self.lookup_table is None or self.lookup_grid is None:
+        if self.lookup_table is None or self.lookup_hull is None or self.lookup_grid is None:
             return None
-        return Lookup(self.lookup_table, *self.lookup_grid)
+        return Lookup(self.lookup_table, self.lookup_hull, *self.lookup_grid)
 
     @property
     def num_cells(self) -> int:
@@ -489,7 +491,9 @@ class CellRepertoire:
 
 jax.tree_util.register_dataclass(
     CellRepertoire,
-    data_fields=["genotypes", "fitnesses", "descriptors", "centroids", "lookup_table", "thresholds"],
+    data_fields=[
+        "genotypes", "fitnesses", "descriptors", "centroids", "lookup_table", "lookup_hull", "thresholds",
+    ],
     meta_fields=["grid_shape", "low", "high", "lookup_grid", "learning_rate", "threshold_min"],
 )
 
@@ -569,5 +573,9 @@ def cvt_repertoire(
             raise ValueError(f"need low < high in every dimension, got low={lo}, high={hi}")
         lookup = build_lookup(c, lo, hi)
         if lookup is not None:
-            meta = {"lookup_table": lookup.table, "lookup_grid": (lookup.shape, lookup.low, lookup.high)}
+            meta = {
+                "lookup_table": lookup.table,
+                "lookup_hull": lookup.hull,
+                "lookup_grid": (lookup.shape, lookup.low, lookup.high),
+            }
     return _empty(genotype_example, c, **meta)
