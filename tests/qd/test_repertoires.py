@@ -777,8 +777,10 @@ def test_cvt_lookup_grid_is_exact_and_used() -> None:
 def test_cvt_search_is_chosen_per_backend_when_lowered() -> None:
     """CPU: the lookup grid (gathers; in 2-D no conditional, the hull is searched for every
     row); GPU: the direct search, with no conditional (a host round trip on a GPU)."""
-    centroids = cvt_centroids(jax.random.PRNGKey(3), 1024, 20_000, (0.0, 0.0), (1.0, 1.0))
-    rep = cvt_repertoire(None, centroids, (0.0, 0.0), (1.0, 1.0))
+    # 1024 centroids spread like a CVT's (a jittered 32 x 32 grid; k-means would take seconds)
+    grid = (np.stack(np.meshgrid(np.arange(32), np.arange(32)), -1).reshape(-1, 2) + 0.5) / 32
+    jitter = np.random.default_rng(3).uniform(-0.3, 0.3, grid.shape) / 32
+    rep = cvt_repertoire(None, grid + jitter, (0.0, 0.0), (1.0, 1.0))
     assert rep.lookup_hull is not None and 4 * rep.lookup_hull.shape[0] <= 1024
 
     def lowered(r: CellRepertoire, platform: str) -> str:
