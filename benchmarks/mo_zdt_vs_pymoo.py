@@ -35,7 +35,7 @@ PYMOO_PYTHON = "python3"  # --pymoo-python
 POP, EVALS = 100, 25_000
 
 
-def run_qdrl(algorithm: str, task: str, seed: int) -> dict[str, object]:
+def run_qdrl(algorithm: str, task: str, seed: int, redraws: int = 0) -> dict[str, object]:
     t_process = time.perf_counter()
     from qdrl.experiment import run
 
@@ -43,7 +43,8 @@ def run_qdrl(algorithm: str, task: str, seed: int) -> dict[str, object]:
     spec = {
         "experiment": {"algorithm": algorithm, "seed": seed, "name": f"{algorithm}_{task}"},
         "task": {"name": task},
-        "population": {"size": POP, "crossover_eta": 20.0, "mutation_eta": 20.0, "crossover_prob": 0.9},
+        "population": {"size": POP, "crossover_eta": 20.0, "mutation_eta": 20.0, "crossover_prob": 0.9,
+                       "redraws": redraws},
         "qd": {"num_iterations": generations, "log_every": generations},
         "log": {"progress": False, "plots": False},
     }
@@ -99,19 +100,21 @@ def run_pymoo(algorithm: str, task: str, seed: int) -> dict[str, object]:
 
 
 def main() -> None:
+    global PYMOO_PYTHON, EVALS
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--task", default="zdt1")
     parser.add_argument("--algorithms", nargs="+", default=["nsga2", "spea2"])
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--pymoo-python", default="python3", help="python of a virtual environment with pymoo 0.6")
+    parser.add_argument("--evaluations", type=int, default=EVALS, help="evaluations per run (the papers': 25,000)")
+    parser.add_argument("--redraws", type=int, default=0, help="qdrl's population.redraws (children copying a parent)")
     parser.add_argument("--one", nargs=3, help=argparse.SUPPRESS)  # internal: qdrl ALGORITHM TASK SEED
     args = parser.parse_args()
-    global PYMOO_PYTHON
-    PYMOO_PYTHON = args.pymoo_python
+    PYMOO_PYTHON, EVALS = args.pymoo_python, args.evaluations
     if args.one:
         algorithm, task, seed = args.one
-        print(json.dumps(run_qdrl(algorithm, task, int(seed))))
+        print(json.dumps(run_qdrl(algorithm, task, int(seed), args.redraws)))
         return
     import numpy as np
 
@@ -124,7 +127,9 @@ def main() -> None:
             for impl in ("qdrl", "pymoo"):  # alternating, one after the other
                 if impl == "qdrl":
                     out = subprocess.run(
-                        [sys.executable, __file__, "--out", str(args.out), "--one", algorithm, args.task, str(seed)],
+                        [sys.executable, __file__, "--out", str(args.out), "--evaluations", str(EVALS),
+                         "--redraws", str(args.redraws),
+                         "--one", algorithm, args.task, str(seed)],
                         capture_output=True, text=True, check=True, env=env,
                     )
                     result = json.loads(out.stdout.strip().splitlines()[-1])
@@ -136,6 +141,7 @@ def main() -> None:
                     "impl": impl, "algorithm": algorithm, "task": args.task, "seed": seed,
                     "hypervolume": hypervolume_exact(front, [-r for r in ref]),
                     "front_size": len(front), **result,
+                    **({"redraws": args.redraws} if impl == "qdrl" else {}),
                 }
                 with args.out.open("a") as f:
                     f.write(json.dumps(row) + "\n")

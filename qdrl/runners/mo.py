@@ -29,7 +29,15 @@ from typing import TYPE_CHECKING, Any, Literal
 import jax
 import numpy as np
 
-from qdrl.config import ConfigError, NonNegativeFloat, PositiveInt, UnitFloat, build, check_table
+from qdrl.config import (
+    ConfigError,
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveInt,
+    UnitFloat,
+    build,
+    check_table,
+)
 from qdrl.experiment import ExperimentConfig, Sections, register, scalar
 from qdrl.placement import check_divisible, make_placement
 from qdrl.runners.qd import QDConfig, QDRun, parse_qd, parse_task
@@ -58,6 +66,9 @@ class PopulationConfig:
     mutation_eta: NonNegativeFloat = 20.0  # polynomial mutation distribution index
     # Each gene mutates with this probability; 0 means 1 / (number of genes), the usual choice.
     mutation_prob: UnitFloat = 0.0
+    # A child equal to one of its parents is drawn again up to this many times (0: never);
+    # each redraw costs a full variation of the batch.
+    redraws: NonNegativeInt = 0
 
 
 def _check_mo_task(task: Mapping[str, Any], algorithm: str) -> None:
@@ -293,7 +304,7 @@ class PopulationRun(_MOMixin, QDRun):
         mutation_prob = c.mutation_prob or 1.0 / task.genotype_size
         emitter = sbx_emitter(
             c.size, c.crossover_eta, c.mutation_eta, mutation_prob, task.genotype_low,
-            task.genotype_high, crossover_prob=c.crossover_prob,
+            task.genotype_high, crossover_prob=c.crossover_prob, redraws=c.redraws,
         )
         return MapElites(
             self.scoring(), emitter, self.empty_repertoire(), metrics_fn=self.metrics_fn(), placement=self.placement

@@ -46,3 +46,21 @@ def test_mutation_rate_and_emitter() -> None:
         bernoulli_polynomial_mutation(x, jax.random.PRNGKey(0), 20.0, 1.5, 0.0, 1.0)
     with pytest.raises(ValueError, match="crossover_prob must be in"):
         sbx_crossover(x, x, jax.random.PRNGKey(0), 20.0, 0.0, 1.0, crossover_prob=2.0)
+
+
+def test_children_that_copy_a_parent_are_drawn_again() -> None:
+    # Equal parents never cross; each of 4 genes mutates with probability 0.2, so a draw copies
+    # its parent with probability 0.8^4 = 0.41, and after 3 more draws with 0.41^4 = 0.028.
+    n = 4000
+    x = jnp.full((n, 4), 0.5)
+    copies = {}
+    for redraws in (0, 3):
+        emitter = sbx_emitter(n, 20.0, 20.0, 0.2, 0.0, 1.0, redraws=redraws)
+        assert emitter.variation_fn is not None
+        child = emitter.variation_fn(x, x, jax.random.PRNGKey(0))
+        assert child.shape == x.shape and bool(jnp.all((child >= 0.0) & (child <= 1.0)))
+        copies[redraws] = float(jnp.mean(jnp.all(child == x, axis=1)))
+    assert 0.38 < copies[0] < 0.44
+    assert 0.018 < copies[3] < 0.040
+    with pytest.raises(ValueError, match="redraws"):
+        sbx_emitter(8, 20.0, 20.0, 0.2, 0.0, 1.0, redraws=-1)
