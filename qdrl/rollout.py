@@ -114,28 +114,23 @@ def run_episodes(
     key: PRNGKey,
     num_envs: int,
     num_steps: int | None = None,
-    start_key: PRNGKey | None = None,
     record: RecordFn | None = None,
     start_state: EnvState | None = None,
 ) -> Episodes:
     """Roll out one episode per environment from fresh resets, masking steps after the end.
 
     Episodes last at most `num_steps` (default: the env's episode length). With
-    `start_key`, every environment starts from the one initial state that key
-    resets to (QDax's deterministic evaluation of policies); otherwise each starts
+    `start_state` (one unbatched state, e.g. `fixed_start_state`: QDax's deterministic
+    evaluation of policies), every environment starts from it; otherwise each starts
     from its own random initial state. With `record`, `Episodes.recorded` stacks what
-    it keeps of the batch's state after each step (see `unroll_recorded`). With
-    `start_state` (one unbatched state, e.g. `fixed_start_state`), every environment
-    starts from it.
+    it keeps of the batch's state after each step (see `unroll_recorded`).
     """
     num_steps = env.episode_length if num_steps is None else num_steps
     reset_key, run_key = jax.random.split(key)
     if start_state is not None:
         state = jax.tree.map(lambda x: jnp.broadcast_to(x, (num_envs, *jnp.shape(x))), start_state)
-    elif start_key is None:
-        state = reset_batch(env, reset_key, num_envs)
     else:
-        state = jax.vmap(env.reset)(jnp.broadcast_to(start_key, (num_envs, *start_key.shape)))
+        state = reset_batch(env, reset_key, num_envs)
     _, tr, recorded = unroll_recorded(
         env, state, policy, run_key, num_steps, _nothing if record is None else record, reset=False
     )

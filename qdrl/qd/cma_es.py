@@ -40,7 +40,7 @@ Two sets of update equations (`update_rule`):
 
 The eigendecomposition C = B diag(D^2) B^T behind sampling and C^(-1/2) is lazy.
 By default ("generations") it is refreshed once ceil(0.5 lambda / (n (c_1 + c_mu)))
-generations have passed since the last (Hansen's rule of thumb, as QDax counts it:
+generations have passed since the last (the rule pyribs and QDax use, counted as QDax counts it:
 every 101 generations for n = 100, lambda = 36). "evaluations" follows pyribs'
 and purecma's code, which count the same number in EVALUATIONS: refreshed once
 more than that many evaluations have passed, i.e. every floor(that / lambda) + 1

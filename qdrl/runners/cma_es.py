@@ -41,7 +41,7 @@ class CMAESConfig:
     sigma0: PositiveFloat = 0.3  # initial step size (in genotype units) of every (re)start
     separable: bool = False  # sep-CMA-ES: diagonal covariance, for thousands of parameters
     # Generations between eigendecompositions, or 0.5 lambda / (n (c_1 + c_mu)) counted in
-    # "generations" (Hansen's rule, QDax's) or in "evaluations" (pyribs' code).
+    # "generations" (as QDax counts it) or in "evaluations" (as pyribs' code does).
     eigen_gap: PositiveInt | EigenGapRule = "generations"
     update_rule: Literal["pyribs", "tutorial"] = "pyribs"
     restarts: bool = True  # start again from a random genotype when a stop condition fires

@@ -106,7 +106,7 @@ class CMAEmitterConfig:
     restart_rule: RestartRule = "no_improvement"
     separable: bool = False  # sep-CMA-ES: diagonal covariance, for thousands of parameters
     # Generations between eigendecompositions, or the rule 0.5 lambda / (n (c_1 + c_mu)) counted
-    # in "generations" (Hansen's, QDax's) or in "evaluations" (pyribs' code: lambda times as often).
+    # in "generations" (as QDax counts it) or in "evaluations" (pyribs' code: lambda times as often).
     eigen_gap: PositiveInt | EigenGapRule = "generations"
     update_rule: UpdateRule = "pyribs"  # CMA-ES equations: pyribs' (the reference) or Hansen's tutorial
 
