@@ -134,6 +134,12 @@ def policy_scoring_fn(
 
         return run_episodes(env, policy, key, n, num_steps, record=recorder, start_state=start_state())
 
+    # One jitted rollout per task: jax traces it once per block shape and reuses the trace
+    # wherever the task is evaluated again with that shape (a run's initial population and
+    # its step; 1.3-1.6 s of tracing brax's step each time on halfcheetah). The compiled
+    # programs are unchanged: XLA inlines the call.
+    rollout = jax.jit(rollout)
+
     def scoring_fn(genotypes: Genotype, key: PRNGKey) -> Evaluation:
         n = jax.tree.leaves(genotypes)[0].shape[0]
         if eval_batch is None:
