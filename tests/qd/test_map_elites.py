@@ -165,3 +165,22 @@ def test_scanned_metrics_travel_packed_and_come_back_exact() -> None:
     np.testing.assert_array_equal(np.asarray(out["vector"]), [[0, 0], [1, 1], [2, 2]])
     assert np.all(np.isnan(np.asarray(out["score"])))
     np.testing.assert_array_equal(np.asarray(out["low"]), -np.inf)
+
+
+def test_run_gives_the_same_metrics_whether_they_travel_packed_or_apart(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """On a CPU `run` stacks each metric apart; traced for an accelerator it packs them
+    into one vector per iteration. Both give the same names, dtypes and values."""
+    import qdrl.qd.map_elites as map_elites
+
+    rep = grid_repertoire(jnp.zeros((8,)), (8, 8), TASK.descriptor_low, TASK.descriptor_high)
+    me = _me(rep)
+    state = _start(me)
+    _, apart = jax.jit(lambda s: me.run(s, 3))(state)
+    monkeypatch.setattr(map_elites.jax, "default_backend", lambda: "gpu")
+    _, packed = jax.jit(lambda s: me.run(s, 3))(state)
+    assert list(apart) == list(packed) and "num_elites" in apart and "added" in apart
+    for name in apart:
+        assert apart[name].dtype == packed[name].dtype and apart[name].shape == (3,), name
+        np.testing.assert_array_equal(np.asarray(apart[name]), np.asarray(packed[name]), err_msg=name)
