@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -154,3 +155,25 @@ def test_argument_checks_and_an_open_arena() -> None:
     np.testing.assert_allclose(
         np.asarray(episodes.final_desc), np.tile(QDAX_GOAL, (4, 1)), atol=1e-6
     )
+
+
+def test_a_task_traces_its_rollout_once_per_block_shape(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run's step reuses the trace of the initial evaluation's rollout (same block shape):
+    two separately jitted evaluations trace the environment loop once, and give equal scores."""
+    import qdrl.tasks.policy as policy
+
+    calls: list[int] = []
+    real = policy.run_episodes
+
+    def counting(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(policy, "run_episodes", counting)
+    task = point_maze(episode_length=5, policy_hidden=(4,), eval_batch=4)
+    genotypes = task.init_genotypes(jax.random.PRNGKey(0), 8)  # two blocks of 4
+    key = jax.random.PRNGKey(1)
+    first = jax.jit(lambda g, k: task.scoring_fn(g, k))(genotypes, key)
+    second = jax.jit(lambda g, k: task.scoring_fn(g, k).fitnesses)(genotypes, key)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(np.asarray(first.fitnesses), np.asarray(second))
