@@ -360,18 +360,16 @@ class MapElites:
                 " (a traced value?): jit me.run with the number of steps static, "
                 "jax.jit(me.run, static_argnums=1)"
             ) from None
+        if jax.default_backend() == "cpu":
+            return jax.lax.scan(lambda s, _: self.step(s), state, None, length=length)
         layout: list[tuple[str, Any]] = []  # (name, dtype) of the packed metrics, in order
-        pack = jax.default_backend() != "cpu"
 
         def body(s: QDState, _: None) -> tuple[QDState, tuple[Array, dict[str, Array]]]:
             s, metrics = self.step(s)
-            if not pack:
-                return s, (jnp.zeros((0,), jnp.float32), metrics)
-            packed, rest = _pack_scalars(metrics, layout)
-            return s, (packed, rest)
+            return s, _pack_scalars(metrics, layout)
 
         state, (packed, rest) = jax.lax.scan(body, state, None, length=length)
-        return state, (_unpack_scalars(packed, rest, layout) if pack else rest)
+        return state, _unpack_scalars(packed, rest, layout)
 
     def _metrics(self, state: QDState, added: AddResult) -> dict[str, Array]:
         metrics = dict(self.metrics_fn(state.repertoire, self.qd_offset))

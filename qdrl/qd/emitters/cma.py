@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import Annotated, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -42,6 +42,7 @@ from jax.flatten_util import ravel_pytree
 from qdrl.config import OneOf, PositiveFloat, PositiveInt, Range, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.cma_es import CMAES, CMAESState, EigenGapRule
+from qdrl.qd.emitters.multi import tree_select
 from qdrl.qd.emitters.rankers import (
     RANKERS,
     Outcome,
@@ -143,15 +144,6 @@ def must_restart(restart_rule: str | int, stopped: Array, status: Array, generat
     if restart_rule == "basic":
         return stopped
     return stopped | (generation >= int(restart_rule))
-
-
-def tree_select(mask: Array, on_true: Any, on_false: Any) -> Any:
-    """Per-instance `where`: `mask` (K,) picks rows of pytrees whose leaves lead with K."""
-
-    def pick(a: Array, b: Array) -> Array:
-        return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
-
-    return jax.tree.map(pick, on_true, on_false)
 
 
 @dataclasses.dataclass(eq=False)

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from qdrl.config import NonNegativeFloat, PositiveInt, UnitFloat, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
-from qdrl.qd.emitters.multi import concat_batches
+from qdrl.qd.emitters.multi import concat_batches, tree_select
 from qdrl.types import Array, Genotype, PRNGKey
 
 VariationFn = Callable[[Genotype, Genotype, PRNGKey], Genotype]
@@ -506,11 +506,6 @@ def ga_emitter(
     )
 
 
-def _where_rows(mask: Array, a: Array, b: Array) -> Array:
-    """Rows of a where mask (n,), else rows of b."""
-    return jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)
-
-
 def sbx_emitter(
     batch_size: int,
     crossover_eta: float,
@@ -530,8 +525,9 @@ def sbx_emitter(
     equal to one of its parents (no gene crossed or mutated: about 4% of them with
     30 genes and mutation 1/30) is drawn again, up to `redraws` times, so that few
     evaluations go to copies, as pymoo's duplicate elimination does against the
-    whole population; each redraw costs a full draw for every child. Keys: `split(key, 1 + redraws)`, the first for the first draw;
-    each draw splits its key into crossover and mutation keys.
+    whole population; each redraw costs a full draw for every child. Keys:
+    `split(key, 1 + redraws)`, the first for the first draw; each draw splits its
+    key into crossover and mutation keys.
     """
     if not (isinstance(redraws, int) and redraws >= 0):
         raise ValueError(f"redraws: expected an integer >= 0, got {redraws!r}")
@@ -554,7 +550,7 @@ def sbx_emitter(
         for k in keys[1:]:
             again = is_copy(child, x1) | is_copy(child, x2)
             fresh = draw(x1, x2, k)
-            child = jax.tree.map(functools.partial(_where_rows, again), fresh, child)
+            child = tree_select(again, fresh, child)
         return child
 
     return GAEmitter(batch_size, variation, None, variation_percentage=1.0)

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
-from qdrl.types import Genotype, PRNGKey
+from qdrl.types import Array, Genotype, PRNGKey
 
 
 def split_batch(batch_size: int, shares: Sequence[float]) -> tuple[int, ...]:
@@ -53,6 +53,15 @@ def concat_batches(parts: Sequence[Genotype]) -> Genotype:
     if len(parts) == 1:
         return parts[0]
     return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *parts)
+
+
+def tree_select(mask: Array, on_true: Any, on_false: Any) -> Any:
+    """Per-row `where`: `mask` (K,) picks rows of pytrees whose leaves lead with K."""
+
+    def pick(a: Array, b: Array) -> Array:
+        return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
+
+    return jax.tree.map(pick, on_true, on_false)
 
 
 @dataclasses.dataclass(eq=False)
