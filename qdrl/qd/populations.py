@@ -3,8 +3,9 @@
 A population is a container like the repertoires (`add` / `sample`, a pytree), so
 NSGA-II and SPEA2 run on the one QD loop (`qdrl.qd.map_elites.MapElites`): each
 iteration the emitter makes N offspring from parents that `sample` draws by binary
-tournament, and `add` merges the N members with the offspring and keeps N by the
-survival rule:
+tournaments between neighbours of the shuffled population (as Deb's NSGA-II code
+and pymoo draw them: every member competes equally often), and `add` merges the N
+members with the offspring and keeps N by the survival rule:
 
 - "nsga2" (Deb, Pratap, Agarwal & Meyarivan 2002, "A fast and elitist
   multiobjective genetic algorithm: NSGA-II"): whole fronts of the non-dominated
@@ -37,10 +38,10 @@ import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult
 from qdrl.qd.pareto import crowding_distance, dominance_matrix, front_ranks
-from qdrl.qd.repertoires.cells import check_batch, init_storage, sample_filled_indices
+from qdrl.qd.repertoires.cells import check_batch, init_storage
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
-__all__ = ["ParetoPopulation", "Survival", "pareto_population", "spea2_fitness"]
+__all__ = ["ParetoPopulation", "Survival", "pareto_population", "spea2_fitness", "tournament_pool"]
 
 Survival = Literal["nsga2", "spea2"]
 
@@ -73,6 +74,25 @@ def spea2_fitness(points: Array, mask: Array, k: int) -> tuple[Array, Array]:
         kth = jnp.full((n,), jnp.inf)
     density = 1.0 / (jnp.where(jnp.isfinite(kth), kth, 0.0) + 2.0)
     return jnp.where(mask, raw + density, jnp.inf), sq_dist
+
+
+def tournament_pool(key: PRNGKey, members: Array, length: int) -> Array:
+    """(length,) int32 member slots: the members in random orders, one order after another.
+
+    Entry i is entry i mod m of order i // m (m members), so with m even consecutive
+    pairs are two distinct members, and over the pool each member appears as often as
+    any other, +-1. ceil(length / N) + 1 orders are drawn (N slots); when fewer than N
+    slots hold members, later entries reuse them in turn. With no member, every entry
+    is slot 0.
+    """
+    n = members.shape[0]
+    reps = -(-length // n) + 1
+    # Members first, in random order: argsort of uniform keys, +inf on empty slots.
+    keys = jnp.where(members[None, :], jax.random.uniform(key, (reps, n)), jnp.inf)
+    orders = jnp.argsort(keys, axis=1).astype(jnp.int32)
+    count = jnp.maximum(jnp.sum(members, dtype=jnp.int32), 1)
+    i = jnp.arange(length, dtype=jnp.int32)
+    return orders[(i // count) % reps, i % count]
 
 
 _Truncation = tuple[Array, Array, Array, Array, Array]  # alive, candidates, last value, uses, j
@@ -225,13 +245,16 @@ class ParetoPopulation:
         return new, result
 
     def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
-        """`num_samples` parents, each the winner of a binary tournament between two random members.
+        """`num_samples` parents, each the winner of a binary tournament between two members.
 
-        Lower `rank` wins, then higher `score`, then the first drawn.
+        The tournaments pair neighbours in the members shuffled, shuffled again, and so
+        on (`tournament_pool`): Deb's NSGA-II code and pymoo draw them so, and every
+        member meets as many rivals as the others (in a full population drawn for N
+        parents, exactly two), where independent draws leave some members out of
+        every tournament. Lower `rank` wins, then higher `score`, then the first drawn.
         """
-        key_a, key_b = jax.random.split(key)
-        a = sample_filled_indices(key_a, self.members, num_samples)
-        b = sample_filled_indices(key_b, self.members, num_samples)
+        pool = tournament_pool(key, self.members, 2 * num_samples)
+        a, b = pool[0::2], pool[1::2]
         b_wins = (self.rank[b] < self.rank[a]) | (
             (self.rank[b] == self.rank[a]) & (self.score[b] > self.score[a])
         )

@@ -14,7 +14,7 @@ from pareto_reference import crowding as _crowding
 from pareto_reference import dominates as _dominates
 from pareto_reference import ranks as _ranks
 
-from qdrl.qd.populations import ParetoPopulation, pareto_population
+from qdrl.qd.populations import ParetoPopulation, pareto_population, tournament_pool
 
 SIZE, BATCH = 6, 6
 
@@ -86,10 +86,40 @@ def test_tournament_prefers_the_lower_front_then_the_larger_score(add: object) -
     pop, _ = add(pop, f, np.zeros((BATCH, 1)), f)  # type: ignore[operator]
     assert int(np.sum(np.asarray(pop.members))) == 4  # NaN offspring never survive
     samples = np.asarray(jax.jit(pop.sample, static_argnums=1)(jax.random.PRNGKey(1), 40_000))
-    # a member wins when both drawn are it or it meets a worse one: P(i-th best) = (2(4 - i) - 1) / 16
+    # Tournaments pair neighbours of shuffled orders of the 4 members: each member is in
+    # half of them and meets each rival equally often, so the i-th best wins the share
+    # (1/2) P(its rival is worse) = (3 - i) / 6 of them: 1/2, 1/3, 1/6, 0.
     for i in range(4):
         share = np.mean(np.all(samples == f[i], axis=1))
-        assert share == pytest.approx((2 * (4 - i) - 1) / 16, abs=0.01)
+        assert share == pytest.approx((3 - i) / 6, abs=0.01)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_every_member_of_a_full_population_competes_in_exactly_two_tournaments(
+    add: object, seed: int
+) -> None:
+    # N parents from N members: 2N tournament places, two per member, so the best
+    # member (which wins every tournament it is in) is drawn exactly twice and the
+    # worst never, whatever the draw (independent draws give 0 to 6 and 0 to 5 times).
+    n = 8
+    f = np.stack([np.arange(n, dtype=np.float32)] * 2, axis=1)  # a chain: member i dominates i - 1
+    pop = pareto_population(jnp.zeros(2), n, 2, 1, "nsga2")
+    pop, _ = add(pop, f, np.zeros((n, 1)), f)  # type: ignore[operator]
+    samples = np.asarray(pop.sample(jax.random.PRNGKey(seed), n))
+    counts = [int(np.sum(np.all(samples == f[i], axis=1))) for i in range(n)]
+    assert counts[n - 1] == 2 and counts[0] == 0
+    assert sum(counts) == n
+
+
+def test_tournament_pool_spreads_the_members_evenly() -> None:
+    members = jnp.array([True, False, True, True, False, True, True])  # 5 of 7 slots
+    pool = np.asarray(tournament_pool(jax.random.PRNGKey(0), members, 23))
+    assert set(pool.tolist()) <= {0, 2, 3, 5, 6}
+    counts = np.bincount(pool, minlength=7)[[0, 2, 3, 5, 6]]
+    assert counts.max() - counts.min() <= 1  # 23 = 4 x 5 + 3
+    # each run of 5 entries is one order of the 5 members
+    for start in range(0, 20, 5):
+        assert sorted(pool[start : start + 5].tolist()) == [0, 2, 3, 5, 6]
 
 
 def test_invalid_offspring_never_survive(add: object) -> None:

@@ -525,9 +525,9 @@ def sbx_emitter(
     equal to one of its parents (no gene crossed or mutated: about 4% of them with
     30 genes and mutation 1/30) is drawn again, up to `redraws` times, so that few
     evaluations go to copies, as pymoo's duplicate elimination does against the
-    whole population; each redraw costs a full draw for every child. Keys:
-    `split(key, 1 + redraws)`, the first for the first draw; each draw splits its
-    key into crossover and mutation keys.
+    whole population; each redraw costs a full draw for every child. Keys: the
+    key itself without redraws, else `split(key, 1 + redraws)`, the first for the
+    first draw; each draw splits its key into crossover and mutation keys.
     """
     if not (isinstance(redraws, int) and redraws >= 0):
         raise ValueError(f"redraws: expected an integer >= 0, got {redraws!r}")
@@ -545,6 +545,8 @@ def sbx_emitter(
         return functools.reduce(jnp.logical_and, same)
 
     def variation(x1: Genotype, x2: Genotype, key: PRNGKey) -> Genotype:
+        if redraws == 0:
+            return draw(x1, x2, key)
         keys = jax.random.split(key, 1 + redraws)
         child = draw(x1, x2, keys[0])
         for k in keys[1:]:
