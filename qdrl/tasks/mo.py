@@ -187,8 +187,10 @@ def dtlz2(
     def evaluate(x: Array) -> tuple[Array, Array]:
         x = jnp.clip(x, 0.0, 1.0)
         g = jnp.sum((x[m - 1 :] - 0.5) ** 2)
-        angles = x[: m - 1] * (jnp.pi / 2.0)
-        cos, sin = jnp.cos(angles), jnp.sin(angles)
+        # cos(x pi/2) as sin((1 - x) pi/2): exactly 0 at x = 1, where float32's cos(pi/2) is
+        # -4.4e-8 and would put points with negative objectives beyond the true front.
+        cos = jnp.sin((1.0 - x[: m - 1]) * (jnp.pi / 2.0))
+        sin = jnp.sin(x[: m - 1] * (jnp.pi / 2.0))
         f = []
         for j in range(m):
             # f_j: the first M-1-j cosines, then the sine of the next angle (none for j = 0).

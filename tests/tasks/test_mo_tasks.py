@@ -33,6 +33,14 @@ def test_function_tasks_at_known_points() -> None:
     f = -np.asarray(TASKS["dtlz2"]().scoring_fn(jnp.asarray(d), None).fitnesses)
     np.testing.assert_allclose(f[0], [math.sqrt(0.5), 0, math.sqrt(0.5)], atol=1e-6)
     np.testing.assert_allclose(np.sum(f**2, axis=1), 1.0, rtol=1e-5)
+    # An angle at its upper bound zeroes the objectives it multiplies by its cosine,
+    # exactly: float32's cos(pi/2) = -4.4e-8 would put such points beyond the true front
+    # (objectives below 0 that nothing dominates), where they would hold population slots.
+    edge = np.full((3, 12), 0.7, np.float32)
+    edge[:, :2] = [[1.0, 0.3], [0.4, 1.0], [1.0, 1.0]]
+    fe = -np.asarray(TASKS["dtlz2"]().scoring_fn(jnp.asarray(edge), None).fitnesses)
+    assert np.all(fe >= 0.0)
+    assert fe[0, 0] == 0.0 and fe[0, 1] == 0.0 and fe[1, 0] == 0.0 and fe[2, 0] == fe[2, 1] == 0.0
     g = np.linspace(-2, 4, 100 * 4).reshape(4, 100).astype(np.float32)
     r = np.asarray(TASKS["mo_rastrigin"]().scoring_fn(jnp.asarray(g), None).fitnesses)
     expected = [[-_rastrigin(row), -_rastrigin(row - 2.2)] for row in g.astype(np.float64)]
