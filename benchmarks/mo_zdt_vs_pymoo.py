@@ -14,6 +14,8 @@ persistent compilation cache warm after the first run of a spec, as for a user's
 second run), `process_s` includes importing jax and qdrl.
 pymoo: `minimize(problem, NSGA2(...) / SPEA2(...), ("n_evals", 25000), seed)` in
 pymoo's own virtual environment (`--pymoo-python`); `run_s` is `minimize` alone.
+Its mutation is `PM(prob=1.0, eta=20)`: pymoo's default `prob=0.9` leaves 10% of the
+children unmutated, below the papers' 1 / n per gene.
 
     python benchmarks/mo_zdt_vs_pymoo.py --pymoo-python /path/to/pymoo-venv/bin/python --seeds 5 \
         --out benchmarks/results/mo_zdt1_vs_pymoo.jsonl
@@ -79,7 +81,9 @@ from pymoo.problems import get_problem
 algorithm, task, seed, pop, evals = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
 problem = get_problem(task) if task != "dtlz2" else get_problem("dtlz2", n_var=12, n_obj=3)
 cls = NSGA2 if algorithm == "nsga2" else SPEA2
-algo = cls(pop_size=pop, crossover=SBX(prob=0.9, eta=20), mutation=PM(eta=20))
+# PM(prob=1.0): pymoo mutates only 90% of the children by default (each gene then with
+# probability 1/n); the papers and qdrl mutate every gene of every child with probability 1/n.
+algo = cls(pop_size=pop, crossover=SBX(prob=0.9, eta=20), mutation=PM(prob=1.0, eta=20))
 t0 = time.perf_counter()
 res = minimize(problem, algo, ("n_evals", evals), seed=seed, verbose=False)
 run_s = time.perf_counter() - t0
