@@ -37,7 +37,7 @@ PYMOO_PYTHON = "python3"  # --pymoo-python
 POP, EVALS = 100, 25_000
 
 
-def run_qdrl(algorithm: str, task: str, seed: int, redraws: int = 0) -> dict[str, object]:
+def run_qdrl(algorithm: str, task: str, seed: int, redraws: int = 1) -> dict[str, object]:
     t_process = time.perf_counter()
     from qdrl.experiment import run
 
@@ -112,7 +112,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--pymoo-python", default="python3", help="python of a virtual environment with pymoo 0.6")
     parser.add_argument("--evaluations", type=int, default=EVALS, help="evaluations per run (the papers': 25,000)")
-    parser.add_argument("--redraws", type=int, default=0, help="qdrl's population.redraws (children copying a parent)")
+    parser.add_argument("--redraws", type=int, default=1,
+                        help="qdrl's population.redraws (children copying a parent; 1 is the default)")
     parser.add_argument("--one", nargs=3, help=argparse.SUPPRESS)  # internal: qdrl ALGORITHM TASK SEED
     args = parser.parse_args()
     PYMOO_PYTHON, EVALS = args.pymoo_python, args.evaluations

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from qdrl.config import NonNegativeFloat, PositiveInt, UnitFloat, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
-from qdrl.qd.emitters.multi import concat_batches, tree_select
+from qdrl.qd.emitters.multi import concat_batches
 from qdrl.types import Array, Genotype, PRNGKey
 
 VariationFn = Callable[[Genotype, Genotype, PRNGKey], Genotype]
@@ -525,9 +525,10 @@ def sbx_emitter(
     equal to one of its parents (no gene crossed or mutated: about 4% of them with
     30 genes and mutation 1/30) is drawn again, up to `redraws` times, so that few
     evaluations go to copies, as pymoo's duplicate elimination does against the
-    whole population; each redraw costs a full draw for every child. Keys: the
-    key itself without redraws, else `split(key, 1 + redraws)`, the first for the
-    first draw; each draw splits its key into crossover and mutation keys.
+    whole population. The 1 + `redraws` draws of every child are made at once, as
+    one variation of the parents repeated 1 + `redraws` times (rows k n .. (k + 1) n
+    - 1 are the k-th draws), and each child is its first draw that copies neither
+    parent, else its last. The draw splits its key into crossover and mutation keys.
     """
     if not (isinstance(redraws, int) and redraws >= 0):
         raise ValueError(f"redraws: expected an integer >= 0, got {redraws!r}")
@@ -547,13 +548,18 @@ def sbx_emitter(
     def variation(x1: Genotype, x2: Genotype, key: PRNGKey) -> Genotype:
         if redraws == 0:
             return draw(x1, x2, key)
-        keys = jax.random.split(key, 1 + redraws)
-        child = draw(x1, x2, keys[0])
-        for k in keys[1:]:
-            again = is_copy(child, x1) | is_copy(child, x2)
-            fresh = draw(x1, x2, k)
-            child = tree_select(again, fresh, child)
-        return child
+        # All 1 + redraws draws at once, as one batch of (1 + redraws) n pairs (one large
+        # variation costs little more than one small one); each child is its first draw that
+        # copies neither parent, or its last draw.
+        reps = 1 + redraws
+        n = _batch_size(x1)
+        p1 = jax.tree.map(lambda x: jnp.concatenate([x] * reps), x1)
+        p2 = jax.tree.map(lambda x: jnp.concatenate([x] * reps), x2)
+        drawn = draw(p1, p2, key)
+        fresh = ~(is_copy(drawn, p1) | is_copy(drawn, p2)).reshape(reps, n)[:-1]
+        pick = jnp.where(jnp.any(fresh, axis=0), jnp.argmax(fresh, axis=0), reps - 1)
+        rows = pick * n + jnp.arange(n)
+        return jax.tree.map(lambda x: x[rows], drawn)
 
     return GAEmitter(batch_size, variation, None, variation_percentage=1.0)
 
