@@ -375,25 +375,26 @@ class CellRepertoire:
         # Rejected candidates go to an extra segment `num_cells` that is then dropped.
         segment = jnp.where(valid, cell, num_cells)
         fit = jnp.where(valid, fitnesses, -jnp.inf)
-        batch_best = jax.ops.segment_max(fit, segment, num_segments=num_cells + 1)
+        old_fit = jnp.where(valid, self.fitnesses[jnp.clip(cell, 0)], -jnp.inf)
+        old_filled = old_fit > -jnp.inf
+        # Each cell's new fitness: the max of its elite's and its candidates' (rejected ones,
+        # in the out-of-range segment num_cells, are dropped), scattered into the stored
+        # fitnesses themselves rather than into a fresh buffer of segments.
+        new_fit = self.fitnesses.at[segment].max(fit, mode="drop")
         index = jnp.arange(n, dtype=jnp.int32)
-        is_best = valid & (fit == batch_best[segment])
+        # A candidate that beats its cell's elite and equals the cell's new fitness is a best
+        # of its cell; of equals, the lowest index wins.
+        is_best = valid & (fit > old_fit) & (fit == new_fit[jnp.clip(cell, 0)])
         winner = jax.ops.segment_min(
             jnp.where(is_best, index, n), segment, num_segments=num_cells + 1
         )
-        old_fit = jnp.where(valid, self.fitnesses[jnp.clip(cell, 0)], -jnp.inf)
-        old_filled = old_fit > -jnp.inf
-        # The winner of a segment is valid and fittest (a rejected candidate's
-        # segment, num_cells, has no winner below n).
-        added = (winner[segment] == index) & (fit > old_fit)
+        added = is_best & (winner[segment] == index)
         # At most one writer per cell, so the scatter is deterministic; losers are dropped.
         target = jnp.where(added, cell, num_cells)
         new = dataclasses.replace(
             self,
             genotypes=write_rows(self.genotypes, target, genotypes),
-            # A cell's new fitness is its batch best where that is strictly better:
-            # an elementwise max over the cells, one scatter fewer than writing it.
-            fitnesses=jnp.maximum(self.fitnesses, batch_best[:num_cells]),
+            fitnesses=new_fit,
             descriptors=self.descriptors.at[target].set(descriptors, mode="drop"),
         )
         result = AddResult(
