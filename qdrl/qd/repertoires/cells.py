@@ -375,7 +375,8 @@ class CellRepertoire:
         # Rejected candidates go to an extra segment `num_cells` that is then dropped.
         segment = jnp.where(valid, cell, num_cells)
         fit = jnp.where(valid, fitnesses, -jnp.inf)
-        old_fit = jnp.where(valid, self.fitnesses[jnp.clip(cell, 0)], -jnp.inf)
+        safe_cell = jnp.clip(cell, 0)  # rejected rows (-1) read cell 0, then are masked
+        old_fit = jnp.where(valid, self.fitnesses[safe_cell], -jnp.inf)
         old_filled = old_fit > -jnp.inf
         # Each cell's new fitness: the max of its elite's and its candidates' (rejected ones,
         # in the out-of-range segment num_cells, are dropped), scattered into the stored
@@ -384,7 +385,7 @@ class CellRepertoire:
         index = jnp.arange(n, dtype=jnp.int32)
         # A candidate that beats its cell's elite and equals the cell's new fitness is a best
         # of its cell; of equals, the lowest index wins.
-        is_best = valid & (fit > old_fit) & (fit == new_fit[jnp.clip(cell, 0)])
+        is_best = valid & (fit > old_fit) & (fit == new_fit[safe_cell])
         winner = jax.ops.segment_min(
             jnp.where(is_best, index, n), segment, num_segments=num_cells + 1
         )
