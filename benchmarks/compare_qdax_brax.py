@@ -30,11 +30,13 @@ def main() -> None:
     p.add_argument("--task", default="halfcheetah_uni")
     p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--first-seed", type=int, default=0)
+    p.add_argument("--platform", choices=["cpu", "cuda"], default="cpu",
+                   help="JAX_PLATFORMS of every run (cuda: an NVIDIA GPU)")
     p.add_argument("--append", action="store_true", help="keep the runs already in --out")
     p.add_argument("--out", default=str(HERE / "results" / "map_elites_halfcheetah_uni_vs_qdax.json"))
     args = p.parse_args()
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
-    env["JAX_PLATFORMS"] = "cpu"
+    env["JAX_PLATFORMS"] = args.platform
     runs: list[dict[str, Any]] = []
     if args.append and Path(args.out).exists():
         runs = json.loads(Path(args.out).read_text())["runs"]

@@ -89,9 +89,9 @@ def _side_qdrl(args: argparse.Namespace) -> None:
 
 
 def _hlo_table(qdrl: dict[str, Any], qdax: dict[str, Any]) -> dict[str, Any]:
-    """Per module: instructions, kernels, bytes and the OPS counts of both sides, per step."""
+    """Per module both sides have: instructions, kernels, bytes and the OPS counts, per step."""
     table: dict[str, Any] = {}
-    for module in ("cpu_optimized", "cpu_lowered", "cuda_lowered"):
+    for module in sorted(set(qdrl["hlo"]) & set(qdax["hlo"])):
         rows: dict[str, Any] = {}
         for side, rec in (("qdrl", qdrl), ("qdax", qdax)):
             prof = rec["hlo"][module]
@@ -110,6 +110,10 @@ def main() -> None:
     p.add_argument("--containers", nargs="+", default=list(CONTAINERS), choices=list(CONTAINERS))
     p.add_argument("--batch", type=int, default=1024)
     p.add_argument("--iterations", type=int, default=200)
+    p.add_argument("--platform", choices=["cpu", "cuda"], default="cpu",
+                   help="JAX_PLATFORMS of every run (cuda: an NVIDIA GPU)")
+    p.add_argument("--hlo-containers", nargs="*", default=None,
+                   help="containers whose HLO both sides profile (default: all of --containers)")
     p.add_argument("--side", choices=["qdrl"], default=None, help="run one qdrl run and print it")
     p.add_argument("--hlo", action="store_true", help="(--side qdrl) profile the program's HLO")
     p.add_argument("--out", default=str(HERE / "results" / "map_elites_arm_vs_qdax.json"))
@@ -120,7 +124,8 @@ def main() -> None:
     if args.qdax_python is None:
         p.error("--qdax-python is required")
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
-    env["JAX_PLATFORMS"] = "cpu"
+    env["JAX_PLATFORMS"] = args.platform
+    hlo_containers = args.containers if args.hlo_containers is None else args.hlo_containers
     b, n = args.batch, args.iterations
     runs: list[dict[str, Any]] = []
     for seed in range(args.seeds):
@@ -145,8 +150,9 @@ def main() -> None:
         row["speed_ratio"] = round(row["qdrl"]["evals_per_s"] / row["qdax"]["evals_per_s"], 2)
         row["compile_ratio"] = round(row["qdrl"]["compile_s"] / row["qdax"]["compile_s"], 2)
         row["qd_score_ratio"] = round(row["qdrl"]["qd_score"] / row["qdax"]["qd_score"], 4)
-        row["hlo_per_step"] = _hlo_table(run_qdrl(container, 0, b, n, env, hlo=True),
-                                         run_qdax(args.qdax_python, container, 0, b, n, env, hlo=True))
+        if container in hlo_containers:
+            row["hlo_per_step"] = _hlo_table(run_qdrl(container, 0, b, n, env, hlo=True),
+                                             run_qdax(args.qdax_python, container, 0, b, n, env, hlo=True))
         summary[container] = row
         print(json.dumps({container: row}, indent=1), file=sys.stderr)
     from qdrl.bench import machine

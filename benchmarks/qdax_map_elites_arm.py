@@ -18,7 +18,8 @@ qdrl's JAX k-means which is also left out). Grid: QDax's Euclidean centroids,
 which its repertoire indexes by nearest-centroid search.
 
 `--hlo-dir DIR` also writes the timed program's HLO there, as `qdrl.bench.module_texts`
-names them (cpu_optimized.txt, cpu_lowered.txt, cuda_lowered.txt), for
+names them (cpu_optimized.txt, cpu_lowered.txt, cuda_lowered.txt; on a GPU
+gpu_optimized.txt and gpu_lowered.txt), for
 `compare_qdax_map_elites.py` to profile with `qdrl.bench.hlo_profile`.
 """
 
@@ -94,10 +95,12 @@ def main() -> None:
     if args.hlo_dir is not None:
         out = Path(args.hlo_dir)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "cpu_optimized.txt").write_text(compiled.as_text())
-        (out / "cpu_lowered.txt").write_text(traced.lower().as_text(dialect="hlo"))
-        cuda = traced.lower(lowering_platforms=("cuda",)).as_text(dialect="hlo")
-        (out / "cuda_lowered.txt").write_text(cuda)
+        here = jax.default_backend()
+        (out / f"{here}_optimized.txt").write_text(compiled.as_text())
+        (out / f"{here}_lowered.txt").write_text(traced.lower().as_text(dialect="hlo"))
+        if here != "gpu":
+            cuda = traced.lower(lowering_platforms=("cuda",)).as_text(dialect="hlo")
+            (out / "cuda_lowered.txt").write_text(cuda)
     t0 = time.perf_counter()
     repertoire, _metrics = compiled(repertoire, emitter_state, key)
     jax.block_until_ready(repertoire)
