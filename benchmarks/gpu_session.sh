@@ -4,6 +4,7 @@
 #
 #   bash benchmarks/gpu_session.sh OUT_DIR
 #
+# 0. a policy scores the same alone and in its batch (benchmarks/batch_reproduce.py);
 # 1. MAP-Elites on the 100-DoF arm against QDax 0.5.0, CVT 1024, batch 1024, 2 seeds
 #    (fresh processes, alternating) with both sides' compiled GPU HLO per step;
 # 2. the kernels each side's timed program launches (benchmarks/kernel_trace.py);
@@ -61,6 +62,7 @@ cd "$here/.." || exit 1
 step devices 60 "$py" -c "import jax, qdrl; print(jax.__version__, jax.devices())"
 step devices_qdax 60 "$qpy" -c "import jax, qdax; print(jax.__version__, jax.devices())"
 nvidia-smi -L >>"$log" 2>&1
+step batch_reproduce 90 "$py" benchmarks/batch_reproduce.py --policies 12 --eval-batch 8
 step arm_pair_1024 150 "$py" benchmarks/compare_qdax_map_elites.py --platform "$platform" \
     --qdax-python "$qpy" --seeds "$seeds" --containers cvt1024 "${sizes[@]}" --out "$out/arm_pair_1024.json"
 step kernels_qdrl 60 "$py" benchmarks/kernel_trace.py --out "$work/kernels_qdrl.json" --steps "$steps" -- \

@@ -29,10 +29,10 @@ import argparse
 import functools
 import json
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+from hlo_dump import write_module_texts
 
 
 def main() -> None:
@@ -93,14 +93,7 @@ def main() -> None:
     compiled = traced.lower().compile()
     compile_s, compile_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     if args.hlo_dir is not None:
-        out = Path(args.hlo_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        here = jax.default_backend()
-        (out / f"{here}_optimized.txt").write_text(compiled.as_text())
-        (out / f"{here}_lowered.txt").write_text(traced.lower().as_text(dialect="hlo"))
-        if here != "gpu":
-            cuda = traced.lower(lowering_platforms=("cuda",)).as_text(dialect="hlo")
-            (out / "cuda_lowered.txt").write_text(cuda)
+        write_module_texts(args.hlo_dir, traced, compiled)
     t0 = time.perf_counter()
     repertoire, _metrics = compiled(repertoire, emitter_state, key)
     jax.block_until_ready(repertoire)

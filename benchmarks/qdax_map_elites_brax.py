@@ -23,10 +23,10 @@ import argparse
 import functools
 import json
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+from hlo_dump import write_module_texts
 
 
 def main() -> None:
@@ -66,7 +66,7 @@ def main() -> None:
     )
     # With deterministic=True QDax resets the environment HERE, eagerly, and bakes the
     # initial state into the scoring function: that reset is not part of the timed
-    # compilation (qdrl resets inside the program, so its compile_s includes it).
+    # compilation (nor is qdrl's, which computes its fixed start state in a program of its own).
     t0, c0 = time.perf_counter(), time.process_time()
     scoring_fn = create_brax_scoring_fn(
         env,
@@ -103,12 +103,7 @@ def main() -> None:
     compiled = traced.lower().compile()
     compile_s, compile_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     if args.hlo_dir is not None:
-        out = Path(args.hlo_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "cpu_optimized.txt").write_text(compiled.as_text())
-        (out / "cpu_lowered.txt").write_text(traced.lower().as_text(dialect="hlo"))
-        cuda = traced.lower(lowering_platforms=("cuda",)).as_text(dialect="hlo")
-        (out / "cuda_lowered.txt").write_text(cuda)
+        write_module_texts(args.hlo_dir, traced, compiled)
     t0 = time.perf_counter()
     repertoire, metrics = compiled(repertoire, emitter_state, key)
     jax.block_until_ready(repertoire)

@@ -342,6 +342,63 @@ def hlo_summary(texts: dict[str, str], iterations: int) -> dict[str, Any]:
     }
 
 
+
+def _trace_events(path: str | Path) -> tuple[str, list[tuple[str, str, float, float]]]:
+    """(where the events come from, [(module, op, start_ns, duration_ns)]) of an xplane file."""
+    from jax.profiler import ProfileData
+
+    planes = list(ProfileData.from_file(str(path)).planes)
+    device = [p for p in planes if p.name.startswith("/device:GPU")]
+    events: list[tuple[str, str, float, float]] = []
+    for plane in device or planes:
+        for line in plane.lines:
+            for event in line.events:
+                stats = dict(event.stats)
+                if "hlo_op" not in stats and not device:
+                    continue  # host planes: only XLA's thunks, not Python's frames
+                module = f"{stats.get('hlo_module', '?')}#{stats.get('program_id', '?')}"
+                events.append((module, str(stats.get("hlo_op", event.name)), float(event.start_ns), float(event.duration_ns)))
+    return ("gpu" if device else "host"), events
+
+
+def kernel_summary(trace_file: str | Path, steps: int = 1, top: int = 25) -> dict[str, Any]:
+    """What the device ran in a `jax.profiler.trace`: kernels per XLA program, busy time and span.
+
+    `trace_file` is the trace's `*.xplane.pb`. On a GPU the events are the
+    `/device:GPU:*` planes' (one per kernel or copy, as CUPTI saw them); on a CPU,
+    XLA's thunks on the host plane. Events are grouped by the program that launched
+    them (`hlo_module#program_id`); per program: kernels, summed time (`busy_us`),
+    the span from the first kernel's start to the last one's end (`span_us`; span
+    minus busy is time the device waited for launches) and the `top` costliest HLO
+    ops. `per_step` divides the figures of the program that launched the most
+    kernels (a scanned run) by `steps`.
+    """
+    source, events = _trace_events(trace_file)
+    by_module: dict[str, list[tuple[str, float, float]]] = collections.defaultdict(list)
+    for module, op, start, dur in events:
+        by_module[module].append((op, start, dur))
+    modules: dict[str, Any] = {}
+    for module, evs in sorted(by_module.items(), key=lambda kv: -sum(e[2] for e in kv[1])):
+        ops: dict[str, list[float]] = collections.defaultdict(lambda: [0, 0.0])
+        for op, _, dur in evs:
+            ops[op][0] += 1
+            ops[op][1] += dur / 1e3
+        modules[module] = {
+            "kernels": len(evs),
+            "busy_us": round(sum(d for *_, d in evs) / 1e3, 1),
+            "span_us": round((max(s + d for _, s, d in evs) - min(s for _, s, _ in evs)) / 1e3, 1),
+            "top": [
+                {"op": op, "count": int(c), "total_us": round(t, 1)}
+                for op, (c, t) in sorted(ops.items(), key=lambda kv: -kv[1][1])[:top]
+            ],
+        }
+    out: dict[str, Any] = {"source": source, "events": len(events), "modules": modules}
+    if modules:
+        name, main = max(modules.items(), key=lambda kv: kv[1]["kernels"])
+        out["main_module"] = name
+        out["per_step"] = {k: round(main[k] / steps, 2) for k in ("kernels", "busy_us", "span_us")}
+    return out
+
 # The containers of the MAP-Elites benchmark (the QDax paper's arm setting).
 ME_CONTAINERS: dict[str, tuple[str, Any]] = {
     "cvt1024": ("cvt", 1024),

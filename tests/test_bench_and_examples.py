@@ -133,6 +133,35 @@ def test_hlo_profile_counts_loops_fusions_and_the_costliest_branch() -> None:
     assert prof["bytes"] == 80 + 3 * 96 + 96
 
 
+
+def test_kernel_summary_finds_the_scanned_program_and_counts_its_kernels_per_step(tmp_path: Path) -> None:
+    import jax
+    import jax.numpy as jnp
+
+    from qdrl.bench import kernel_summary
+
+    def scanned(x: jax.Array) -> jax.Array:
+        def body(c: jax.Array, _: None) -> tuple[jax.Array, None]:
+            return jnp.sort(jnp.sin(c) * 2.0 + c[::-1]), None
+
+        return jax.lax.scan(body, x, None, length=7)[0]
+
+    run, other = jax.jit(scanned), jax.jit(lambda x: jnp.cumsum(x) - 1.0)
+    x = jnp.linspace(0.0, 1.0, 64)
+    jax.block_until_ready((run(x), other(x)))  # compiled outside the trace
+    with jax.profiler.trace(str(tmp_path)):
+        jax.block_until_ready((run(x), other(x)))
+    (path,) = tmp_path.glob("**/*.xplane.pb")
+    summary = kernel_summary(path, steps=7, top=3)
+    assert summary["source"] == "host" and summary["events"] > 0
+    assert summary["main_module"].startswith("jit_scanned#")
+    main = summary["modules"][summary["main_module"]]
+    assert main["kernels"] >= 7  # at least one kernel per step
+    assert summary["per_step"]["kernels"] == round(main["kernels"] / 7, 2)
+    assert main["busy_us"] > 0 and main["span_us"] > 0
+    assert len(main["top"]) <= 3 and sum(t["count"] for t in main["top"]) <= main["kernels"]
+    assert any(m.startswith("jit__lambda#") for m in summary["modules"])
+
 @pytest.mark.parametrize("script", ["map_elites_function.py", "diayn_skills.py", "pga_me_brax.py"])
 def test_example_runs_at_its_small_size(script: str, tmp_path: Path) -> None:
     """Each example at the size its QDRL_EXAMPLE_SIZE=small gives (the brax one compiles brax
