@@ -15,7 +15,9 @@ second run), `process_s` includes importing jax and qdrl.
 pymoo: `minimize(problem, NSGA2(...) / SPEA2(...), ("n_evals", 25000), seed)` in
 pymoo's own virtual environment (`--pymoo-python`); `run_s` is `minimize` alone.
 Its mutation is `PM(prob=1.0, eta=20)`: pymoo's default `prob=0.9` leaves 10% of the
-children unmutated, below the papers' 1 / n per gene.
+children unmutated, below the papers' 1 / n per gene. `--crowding pruning` runs
+NSGA-II with qdrl's `population.crowding = "pruning"` against pymoo's
+`RankAndCrowding(crowding_func="pcd")`.
 
     python benchmarks/mo_zdt_vs_pymoo.py --pymoo-python /path/to/pymoo-venv/bin/python --seeds 5 \
         --out benchmarks/results/mo_zdt1_vs_pymoo.jsonl
@@ -37,7 +39,7 @@ PYMOO_PYTHON = "python3"  # --pymoo-python
 POP, EVALS = 100, 25_000
 
 
-def run_qdrl(algorithm: str, task: str, seed: int, redraws: int = 1) -> dict[str, object]:
+def run_qdrl(algorithm: str, task: str, seed: int, redraws: int = 1, crowding: str = "distance") -> dict[str, object]:
     t_process = time.perf_counter()
     from qdrl.experiment import run
 
@@ -46,7 +48,7 @@ def run_qdrl(algorithm: str, task: str, seed: int, redraws: int = 1) -> dict[str
         "experiment": {"algorithm": algorithm, "seed": seed, "name": f"{algorithm}_{task}"},
         "task": {"name": task},
         "population": {"size": POP, "crossover_eta": 20.0, "mutation_eta": 20.0, "crossover_prob": 0.9,
-                       "redraws": redraws},
+                       "redraws": redraws, **({"crowding": crowding} if algorithm == "nsga2" else {})},
         "qd": {"num_iterations": generations, "log_every": generations},
         "log": {"progress": False, "plots": False},
     }
@@ -79,11 +81,16 @@ from pymoo.operators.mutation.pm import PM
 from pymoo.optimize import minimize
 from pymoo.problems import get_problem
 algorithm, task, seed, pop, evals = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
+crowding = sys.argv[6]
 problem = get_problem(task) if task != "dtlz2" else get_problem("dtlz2", n_var=12, n_obj=3)
 cls = NSGA2 if algorithm == "nsga2" else SPEA2
 # PM(prob=1.0): pymoo mutates only 90% of the children by default (each gene then with
 # probability 1/n); the papers and qdrl mutate every gene of every child with probability 1/n.
-algo = cls(pop_size=pop, crossover=SBX(prob=0.9, eta=20), mutation=PM(prob=1.0, eta=20))
+kw = {}
+if algorithm == "nsga2" and crowding == "pruning":
+    from pymoo.operators.survival.rank_and_crowding import RankAndCrowding
+    kw["survival"] = RankAndCrowding(crowding_func="pcd")
+algo = cls(pop_size=pop, crossover=SBX(prob=0.9, eta=20), mutation=PM(prob=1.0, eta=20), **kw)
 t0 = time.perf_counter()
 res = minimize(problem, algo, ("n_evals", evals), seed=seed, verbose=False)
 run_s = time.perf_counter() - t0
@@ -95,9 +102,9 @@ print(json.dumps({"evaluations": int(res.algorithm.evaluator.n_eval), "front": r
 """
 
 
-def run_pymoo(algorithm: str, task: str, seed: int) -> dict[str, object]:
+def run_pymoo(algorithm: str, task: str, seed: int, crowding: str = "distance") -> dict[str, object]:
     out = subprocess.run(
-        [PYMOO_PYTHON, "-c", PYMOO_CODE, algorithm, task, str(seed), str(POP), str(EVALS)],
+        [PYMOO_PYTHON, "-c", PYMOO_CODE, algorithm, task, str(seed), str(POP), str(EVALS), crowding],
         capture_output=True, text=True, check=True,
     )
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -114,12 +121,15 @@ def main() -> None:
     parser.add_argument("--evaluations", type=int, default=EVALS, help="evaluations per run (the papers': 25,000)")
     parser.add_argument("--redraws", type=int, default=1,
                         help="qdrl's population.redraws (children copying a parent; 1 is the default)")
+    parser.add_argument("--crowding", choices=["distance", "pruning"], default="distance",
+                        help="NSGA-II's cut of its last front: qdrl's population.crowding and pymoo's "
+                        "RankAndCrowding(crowding_func='cd' or 'pcd')")
     parser.add_argument("--one", nargs=3, help=argparse.SUPPRESS)  # internal: qdrl ALGORITHM TASK SEED
     args = parser.parse_args()
     PYMOO_PYTHON, EVALS = args.pymoo_python, args.evaluations
     if args.one:
         algorithm, task, seed = args.one
-        print(json.dumps(run_qdrl(algorithm, task, int(seed), args.redraws)))
+        print(json.dumps(run_qdrl(algorithm, task, int(seed), args.redraws, args.crowding)))
         return
     import numpy as np
 
@@ -133,13 +143,13 @@ def main() -> None:
                 if impl == "qdrl":
                     out = subprocess.run(
                         [sys.executable, __file__, "--out", str(args.out), "--evaluations", str(EVALS),
-                         "--redraws", str(args.redraws),
+                         "--redraws", str(args.redraws), "--crowding", args.crowding,
                          "--one", algorithm, args.task, str(seed)],
                         capture_output=True, text=True, check=True, env=env,
                     )
                     result = json.loads(out.stdout.strip().splitlines()[-1])
                 else:
-                    result = run_pymoo(algorithm, args.task, seed)
+                    result = run_pymoo(algorithm, args.task, seed, args.crowding)
                 front = -np.asarray(result.pop("front"), np.float64)  # maximisation for qdrl's helper
                 result.pop("population", None)
                 row = {
@@ -147,6 +157,7 @@ def main() -> None:
                     "hypervolume": hypervolume_exact(front, [-r for r in ref]),
                     "front_size": len(front), **result,
                     **({"redraws": args.redraws} if impl == "qdrl" else {}),
+                    **({"crowding": args.crowding} if algorithm == "nsga2" else {}),
                 }
                 with args.out.open("a") as f:
                     f.write(json.dumps(row) + "\n")

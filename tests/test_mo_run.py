@@ -141,6 +141,10 @@ def _spec(name: str) -> dict[str, object]:
          "qd.reevaluate_samples: expected 0 for a multi-objective run, got 2"),
         ("nsga2_zdt1.toml", "population", "mutation_prob", 1.5,
          "population.mutation_prob: expected a number in [0, 1], got 1.5"),
+        ("nsga2_zdt1.toml", "population", "crowding", "close",
+         "population.crowding: expected one of 'distance', 'pruning', got 'close'"),
+        ("spea2_zdt1.toml", "population", "crowding", "pruning",
+         "population.crowding: expected \"distance\" for spea2 (pruning is NSGA-II's cut of its last front)"),
     ],
 )
 def test_bad_mo_specs_are_refused_naming_the_key(

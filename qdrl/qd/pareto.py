@@ -34,6 +34,7 @@ __all__ = [
     "hypervolume_exact",
     "hypervolume_mc",
     "non_dominated",
+    "prune_crowding",
 ]
 
 
@@ -124,6 +125,72 @@ def crowding_distance(
         dist = dist.at[order].add(contrib)
     return jnp.where(mask, dist, -jnp.inf)
 
+
+
+def prune_crowding(points: Array, members: Array, keep: Array | int) -> tuple[Array, Array]:
+    """Thins one front to `keep` members, removing the most crowded one at a time.
+
+    The pruning crowding distance of Kukkonen & Deb 2006 ("Improved pruning of
+    non-dominated solutions based on crowding distance for bi-objective
+    optimization problems"; pymoo's `RankAndCrowding(crowding_func="pcd")`): the
+    objectives are scaled by the members' ranges, the members with the lowest and the
+    highest value of each objective are never removed, and after each removal the
+    crowding distances of the rest are computed again, where a single cut by the
+    first distances (`crowding_distance`) removes whole clusters of neighbours at once.
+
+    Args:
+      points: (n, M) objectives.
+      members: (n,) bool, the front to thin (rows outside it are ignored).
+      keep: how many members to keep (a traced scalar is fine).
+
+    Returns:
+      (kept, distance): (n,) bool, the members left (never fewer than the extremes),
+      and their crowding distances among themselves (+inf for the extremes, -inf off
+      `kept`). Equal distances remove the lowest index first.
+    """
+    points = jnp.asarray(points, jnp.float32)
+    members = jnp.asarray(members, bool)
+    n, m = points.shape
+    lo = jnp.min(jnp.where(members[:, None], points, jnp.inf), axis=0)
+    hi = jnp.max(jnp.where(members[:, None], points, -jnp.inf), axis=0)
+    span = jnp.where(hi > lo, hi - lo, 1.0)
+    scaled = jnp.where(members[:, None], (points - lo) / span, 0.0)
+    orders = [jnp.lexsort((jnp.arange(n), jnp.where(members, scaled[:, k], jnp.inf))) for k in range(m)]
+    extreme = jnp.zeros((n,), bool)
+    for k in range(m):
+        v = jnp.where(members, points[:, k], jnp.nan)
+        extreme = extreme.at[jnp.nanargmin(v)].set(True).at[jnp.nanargmax(v)].set(True)
+    extreme = extreme & members
+    pos = jnp.arange(n)
+
+    def distance(alive: Array) -> Array:
+        dist = jnp.zeros((n,), jnp.float32)
+        for k, order in enumerate(orders):
+            on = alive[order]
+            sv = scaled[order, k]
+            before = jax.lax.cummax(jnp.where(on, pos, -1))  # last alive at or before i
+            after = jax.lax.cummin(jnp.where(on, pos, n), reverse=True)  # first alive at or after i
+            prev = jnp.concatenate([jnp.array([-1]), before[:-1]])
+            nxt = jnp.concatenate([after[1:], jnp.array([n])])
+            both = (prev >= 0) & (nxt < n)
+            gap = jnp.where(both, sv[jnp.clip(nxt, 0, n - 1)] - sv[jnp.clip(prev, 0, n - 1)], jnp.inf)
+            dist = dist.at[order].add(jnp.where(on, gap, 0.0))
+        return jnp.where(alive, jnp.where(extreme, jnp.inf, dist), -jnp.inf)
+
+    def removable(alive: Array) -> Array:
+        return alive & ~extreme
+
+    def cond(alive: Array) -> Array:
+        return (jnp.sum(alive) > keep) & jnp.any(removable(alive))
+
+    def body(alive: Array) -> Array:
+        # Removable members at an end of some order (distance +inf) rank below every
+        # finite distance but above non-removable rows, so argmin always picks a removable one.
+        d = jnp.minimum(distance(alive), jnp.finfo(jnp.float32).max)
+        return alive.at[jnp.argmin(jnp.where(removable(alive), d, jnp.inf))].set(False)
+
+    kept = jax.lax.while_loop(cond, body, members)
+    return kept, distance(kept)
 
 def hypervolume_2d(points: Array, reference: Array, mask: Array | None = None) -> Array:
     """() exact hypervolume of two-objective points w.r.t. `reference` (maximisation); jittable.

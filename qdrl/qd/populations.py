@@ -13,7 +13,10 @@ members with the offspring and keeps N by the survival rule:
   of the objectives of an earlier member, after the distinct members of their front,
   which pymoo's duplicate elimination also does); the
   tournament prefers the lower front, then the larger crowding distance (both as
-  computed in the merged population, as pymoo does).
+  computed in the merged population, as pymoo does). With `crowding="pruning"` the
+  last front is thinned one member at a time, the distances computed again after
+  each removal (Kukkonen & Deb 2006; pymoo's `crowding_func="pcd"`,
+  `qdrl.qd.pareto.prune_crowding`).
 - "spea2" (Zitzler, Laumanns & Thiele 2001, "SPEA2: Improving the strength Pareto
   evolutionary algorithm"): the population is SPEA2's external archive. Fitness
   F = R + D, with raw fitness R(i) the sum of the strengths (number of solutions
@@ -37,13 +40,14 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult
-from qdrl.qd.pareto import crowding_distance, dominance_matrix, front_ranks
+from qdrl.qd.pareto import crowding_distance, dominance_matrix, front_ranks, prune_crowding
 from qdrl.qd.repertoires.cells import check_batch, init_storage
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
-__all__ = ["ParetoPopulation", "Survival", "pareto_population", "spea2_fitness", "tournament_pool"]
+__all__ = ["Crowding", "ParetoPopulation", "Survival", "pareto_population", "spea2_fitness", "tournament_pool"]
 
 Survival = Literal["nsga2", "spea2"]
+Crowding = Literal["distance", "pruning"]
 
 
 def _concat(a: Genotype, b: Genotype) -> Genotype:
@@ -157,6 +161,8 @@ class ParetoPopulation:
       score: (N,) float32 tournament key, higher wins on equal rank (NSGA-II:
         crowding distance; SPEA2: -F).
       survival: "nsga2" or "spea2".
+      crowding: NSGA-II's cut of the last front: "distance" (Deb et al. 2002, one
+        cut by the crowding distance) or "pruning" (one member at a time).
     """
 
     genotypes: Genotype
@@ -165,6 +171,7 @@ class ParetoPopulation:
     rank: Array
     score: Array
     survival: Survival = "nsga2"
+    crowding: Crowding = "distance"
 
     @property
     def size(self) -> int:
@@ -210,6 +217,8 @@ class ParetoPopulation:
             # of its front, as pymoo's duplicate elimination keeps clones out of the population.
             same = jnp.all(f[:, None, :] == f[None, :, :], axis=-1) & mask[None, :]
             clone = jnp.any(jnp.tril(same, k=-1), axis=1)
+            if self.crowding == "pruning":
+                crowd = self._pruned(f, mask, clone, ranks, crowd)
             order = jnp.lexsort((jnp.arange(total), -crowd, clone, ranks))
             chosen = order[:size]
             rank, score = ranks[chosen], crowd[chosen]
@@ -244,6 +253,22 @@ class ParetoPopulation:
         )
         return new, result
 
+    def _pruned(self, f: Array, mask: Array, clone: Array, ranks: Array, crowd: Array) -> Array:
+        """`crowd` with the front that the cut splits thinned by `prune_crowding`.
+
+        The cut takes whole fronts, then the split front's distinct members, then its
+        clones. The distinct members the pruning keeps get their distances among
+        themselves, the removed ones -1 (after every kept one; clones come after both).
+        """
+        total, size = f.shape[0], self.size
+        per_front = jax.ops.segment_sum(mask.astype(jnp.int32), ranks, num_segments=total + 1)
+        before = jnp.cumsum(per_front) - per_front  # members in the fronts before
+        overflow = before + per_front > size
+        split = jnp.argmax(overflow)  # the first front that does not fit whole
+        front = mask & ~clone & (ranks == split) & jnp.any(overflow)
+        kept, dist = prune_crowding(f, front, size - before[split])
+        return jnp.where(front, jnp.where(kept, dist, -1.0), crowd)
+
     def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
         """`num_samples` parents, each the winner of a binary tournament between two members.
 
@@ -265,7 +290,7 @@ class ParetoPopulation:
 jax.tree_util.register_dataclass(
     ParetoPopulation,
     data_fields=["genotypes", "fitnesses", "descriptors", "rank", "score"],
-    meta_fields=["survival"],
+    meta_fields=["survival", "crowding"],
 )
 
 
@@ -275,14 +300,22 @@ def pareto_population(
     num_objectives: int,
     descriptor_size: int,
     survival: Survival,
+    crowding: Crowding = "distance",
 ) -> ParetoPopulation:
-    """An empty population of `population_size` slots for NSGA-II ("nsga2") or SPEA2 ("spea2")."""
+    """An empty population of `population_size` slots for NSGA-II ("nsga2") or SPEA2 ("spea2").
+
+    `crowding` ("distance" or "pruning") is NSGA-II's cut of its last front.
+    """
     if population_size < 1:
         raise ValueError(f"population_size: expected a positive integer, got {population_size}")
     if num_objectives < 2:
         raise ValueError(f"num_objectives: expected at least 2, got {num_objectives}")
     if survival not in ("nsga2", "spea2"):
         raise ValueError(f"survival: expected 'nsga2' or 'spea2', got {survival!r}")
+    if crowding not in ("distance", "pruning"):
+        raise ValueError(f"crowding: expected 'distance' or 'pruning', got {crowding!r}")
+    if crowding != "distance" and survival != "nsga2":
+        raise ValueError(f"crowding: {crowding!r} is NSGA-II's (survival 'nsga2'), got survival {survival!r}")
     return ParetoPopulation(
         genotypes=init_storage(genotype_example, population_size),
         fitnesses=jnp.full((population_size, num_objectives), -jnp.inf, jnp.float32),
@@ -290,4 +323,5 @@ def pareto_population(
         rank=jnp.full((population_size,), population_size, jnp.int32),
         score=jnp.full((population_size,), -jnp.inf, jnp.float32),
         survival=survival,
+        crowding=crowding,
     )

@@ -70,6 +70,10 @@ class PopulationConfig:
     # pymoo draws duplicates again; the draws are made at once (one redraw: about +15% of
     # NSGA-II's loop on ZDT1, and +0.0004 of hypervolume at 25,000 evaluations).
     redraws: NonNegativeInt = 1
+    # NSGA-II's cut of its last front: "distance", one cut by the crowding distance (Deb et al.
+    # 2002), or "pruning", one member at a time with the distances computed again (Kukkonen &
+    # Deb 2006; pymoo's crowding_func="pcd"). SPEA2 has its own truncation.
+    crowding: Literal["distance", "pruning"] = "distance"
 
 
 def _check_mo_task(task: Mapping[str, Any], algorithm: str) -> None:
@@ -117,6 +121,11 @@ def parse_population(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections
         raise ConfigError(f"qd.reevaluate_samples: expected 0 for a multi-objective run, got {qd.reevaluate_samples}")
     task = parse_task(spec.get("task", {"name": "zdt1"}), {"eval_batch": population.size})
     _check_mo_task(task, exp.algorithm)
+    if population.crowding != "distance" and exp.algorithm != "nsga2":
+        raise ConfigError(
+            f"population.crowding: expected \"distance\" for {exp.algorithm} (pruning is NSGA-II's "
+            f"cut of its last front), got {population.crowding!r}"
+        )
     if "episode_length" in task:  # policies: unbounded genotypes, which SBX cannot cross
         raise ConfigError(
             f"task.name: expected a task with bounded genotypes for {exp.algorithm} (SBX and "
@@ -319,7 +328,7 @@ class PopulationRun(_MOMixin, QDRun):
         survival: Survival = "nsga2" if self.algorithm == "nsga2" else "spea2"
         return pareto_population(
             self.example_genotype(), self.pop_cfg.size, self._task.num_objectives,
-            self._task.descriptor_size, survival,
+            self._task.descriptor_size, survival, self.pop_cfg.crowding,
         )
 
 

@@ -53,3 +53,35 @@ def hypervolume(p: np.ndarray, ref: np.ndarray) -> float:
         if np.any(np.all(p >= upper, axis=1)):
             total += math.prod(axes[k][i + 1] - axes[k][i] for k, i in enumerate(idx))
     return total
+
+
+def pruned(p: np.ndarray, members: np.ndarray, keep: int) -> tuple[np.ndarray, np.ndarray]:
+    """Kukkonen & Deb 2006 (pymoo's "pcd"): scale by the members' ranges, keep each objective's
+    first lowest and first highest member, remove the member of smallest crowding distance
+    (lowest index on ties) one at a time, recomputing the distances."""
+    idx = np.flatnonzero(members)
+    lo, hi = p[idx].min(axis=0), p[idx].max(axis=0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    x = (p - lo) / span
+    extremes = {int(idx[np.argmin(p[idx, k])]) for k in range(p.shape[1])}
+    extremes |= {int(idx[np.argmax(p[idx, k])]) for k in range(p.shape[1])}
+
+    def distances(alive: list[int]) -> dict[int, float]:
+        d = dict.fromkeys(alive, 0.0)
+        for k in range(p.shape[1]):
+            order = sorted(alive, key=lambda i: (x[i, k], i))
+            for a, i in enumerate(order):
+                inner = 0 < a < len(order) - 1
+                d[i] += x[order[a + 1], k] - x[order[a - 1], k] if inner else np.inf
+        return {i: (np.inf if i in extremes else v) for i, v in d.items()}
+
+    alive = idx.tolist()
+    while len(alive) > keep and any(i not in extremes for i in alive):
+        d = distances(alive)
+        alive.remove(min((i for i in alive if i not in extremes), key=lambda i: (d[i], i)))
+    kept = np.zeros(len(p), bool)
+    kept[alive] = True
+    dist = np.full(len(p), -np.inf)
+    for i, v in distances(alive).items():
+        dist[i] = v
+    return kept, dist

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from pareto_reference import crowding as _crowding
 from pareto_reference import dominates as _dominates
 from pareto_reference import hypervolume as _hypervolume
+from pareto_reference import pruned as _pruned
 from pareto_reference import ranks as _ranks
 
 from qdrl.qd import pareto
@@ -40,6 +41,7 @@ def jitted() -> dict[str, object]:
         "ranks": jax.jit(pareto.front_ranks),
         "crowd": jax.jit(pareto.crowding_distance),
         "hv2": jax.jit(pareto.hypervolume_2d),
+        "prune": jax.jit(pareto.prune_crowding),
     }
 
 
@@ -59,6 +61,37 @@ def test_dominance_fronts_and_crowding_match_brute_force(
     np.testing.assert_array_equal(np.asarray(jitted["nd"](p, mask)), mask & (ranks == 0))  # type: ignore[operator]
     crowd = np.asarray(jitted["crowd"](p, mask, jnp.asarray(ranks)))  # type: ignore[operator]
     np.testing.assert_allclose(crowd, _crowding(p, mask, ranks), rtol=1e-6)
+
+
+@settings(max_examples=80, deadline=None)
+@given(data=st.integers(2, 3).flatmap(_points), keep=st.integers(0, N))
+def test_pruning_crowding_matches_brute_force(
+    data: tuple[np.ndarray, np.ndarray], keep: int, jitted: dict[str, object]
+) -> None:
+    p, mask = data
+    if not mask.any():
+        return
+    kept, dist = jitted["prune"](p, mask, keep)  # type: ignore[operator]
+    ref_kept, ref_dist = _pruned(p, mask, keep)
+    np.testing.assert_array_equal(np.asarray(kept), ref_kept)
+    np.testing.assert_allclose(np.asarray(dist), ref_dist, rtol=1e-6)
+    assert int(np.sum(kept)) >= min(keep, int(mask.sum()))
+
+
+def test_pruning_keeps_one_of_a_close_pair_where_one_cut_drops_both() -> None:
+    # Seven points on the line f2 = 1 - f1 (maximised as -f): the close pair at 0.40 / 0.43
+    # has the two smallest crowding distances; one cut to 5 removes both, pruning only one
+    # (then the point at 0.8, whose neighbours are nearer once 0.43 is gone).
+    x = np.array([0.0, 0.15, 0.40, 0.43, 0.62, 0.8, 1.0], np.float32)
+    p = -np.stack([x, 1.0 - x], axis=1)
+    mask = np.ones(7, bool)
+    one_cut = np.argsort(-np.asarray(pareto.crowding_distance(p, mask)), kind="stable")[:5]
+    assert sorted(one_cut.tolist()) == [0, 1, 4, 5, 6]
+    kept, dist = pareto.prune_crowding(p, mask, 5)
+    assert np.flatnonzero(np.asarray(kept)).tolist() == [0, 1, 2, 4, 6]
+    # Two objectives, each adding the gap between the neighbours left.
+    np.testing.assert_allclose(np.asarray(dist)[[1, 2, 4]], [0.80, 0.94, 1.2], rtol=1e-5)
+    assert np.isinf(np.asarray(dist)[[0, 6]]).all() and np.isneginf(np.asarray(dist)[[3, 5]]).all()
 
 
 @settings(max_examples=60, deadline=None)

@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pareto_reference import crowding as _crowding
 from pareto_reference import dominates as _dominates
+from pareto_reference import pruned as _pruned
 from pareto_reference import ranks as _ranks
 
 from qdrl.qd.populations import ParetoPopulation, pareto_population, tournament_pool
@@ -19,13 +20,24 @@ from qdrl.qd.populations import ParetoPopulation, pareto_population, tournament_
 SIZE, BATCH = 6, 6
 
 
-def _nsga2_survivors(f: np.ndarray) -> list[int]:
+def _nsga2_survivors(f: np.ndarray, pruning: bool = False) -> list[int]:
     """Deb et al. 2002: whole fronts, the last cut by crowding (stable: lower index first);
-    copies of an earlier member's objectives after the distinct members of their front."""
+    copies of an earlier member's objectives after the distinct members of their front.
+    With `pruning`, the distinct members of the front that does not fit whole are thinned
+    to the room left one at a time (Kukkonen & Deb 2006), the removed ones last."""
     mask = np.ones(len(f), bool)
     ranks = _ranks(f, mask)
     crowd = _crowding(f, mask, ranks)
-    clone = [any(np.array_equal(f[i], f[j]) for j in range(i)) for i in range(len(f))]
+    clone = np.array([any(np.array_equal(f[i], f[j]) for j in range(i)) for i in range(len(f))])
+    if pruning:
+        counts = np.array([np.sum(ranks == r) for r in range(len(f) + 1)])
+        before = np.cumsum(counts) - counts
+        over = np.flatnonzero(before + counts > SIZE)
+        if len(over):
+            split = over[0]
+            front = (ranks == split) & ~clone
+            kept, dist = _pruned(f, front, SIZE - before[split])
+            crowd = np.where(front, np.where(kept, dist, -1.0), crowd)
     order = sorted(range(len(f)), key=lambda i: (ranks[i], clone[i], -crowd[i], i))
     return sorted(order[:SIZE])
 
@@ -62,11 +74,17 @@ def _merge(pop: ParetoPopulation, batch: np.ndarray) -> np.ndarray:
     rounds=st.lists(
         st.lists(st.integers(0, 6), min_size=2 * BATCH, max_size=2 * BATCH), min_size=2, max_size=2
     ),
-    survival=st.sampled_from(["nsga2", "spea2"]),
+    survival=st.sampled_from(["nsga2", "nsga2_pruning", "spea2"]),
 )
 def test_survivors_match_the_papers_rules(rounds: list[list[int]], survival: str, add: object) -> None:
-    pop = pareto_population(jnp.zeros(2), SIZE, 2, 1, survival)  # type: ignore[arg-type]
-    reference = _nsga2_survivors if survival == "nsga2" else _spea2_survivors
+    pruning = survival == "nsga2_pruning"
+    pop = pareto_population(
+        jnp.zeros(2), SIZE, 2, 1, "nsga2" if pruning else survival, "pruning" if pruning else "distance"  # type: ignore[arg-type]
+    )
+    reference = {
+        "nsga2": _nsga2_survivors, "nsga2_pruning": lambda f: _nsga2_survivors(f, pruning=True),
+        "spea2": _spea2_survivors,
+    }[survival]
     for r, values in enumerate(rounds):
         batch = np.asarray(values, np.float32).reshape(BATCH, 2)
         merged = _merge(pop, batch)
