@@ -342,7 +342,6 @@ def hlo_summary(texts: dict[str, str], iterations: int) -> dict[str, Any]:
     }
 
 
-
 def _trace_events(path: str | Path) -> tuple[str, list[tuple[str, str, float, float]]]:
     """(where the events come from, [(module, op, start_ns, duration_ns)]) of an xplane file."""
     from jax.profiler import ProfileData
@@ -398,6 +397,7 @@ def kernel_summary(trace_file: str | Path, steps: int = 1, top: int = 25) -> dic
         out["main_module"] = name
         out["per_step"] = {k: round(main[k] / steps, 2) for k in ("kernels", "busy_us", "span_us")}
     return out
+
 
 # The containers of the MAP-Elites benchmark (the QDax paper's arm setting).
 ME_CONTAINERS: dict[str, tuple[str, Any]] = {

@@ -126,7 +126,6 @@ def crowding_distance(
     return jnp.where(mask, dist, -jnp.inf)
 
 
-
 def prune_crowding(points: Array, members: Array, keep: Array | int) -> tuple[Array, Array]:
     """Thins one front to `keep` members, removing the most crowded one at a time.
 
@@ -191,6 +190,7 @@ def prune_crowding(points: Array, members: Array, keep: Array | int) -> tuple[Ar
 
     kept = jax.lax.while_loop(cond, body, members)
     return kept, distance(kept)
+
 
 def hypervolume_2d(points: Array, reference: Array, mask: Array | None = None) -> Array:
     """() exact hypervolume of two-objective points w.r.t. `reference` (maximisation); jittable.
