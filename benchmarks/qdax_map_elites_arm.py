@@ -28,11 +28,12 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-from hlo_dump import write_module_texts
 
 
 def main() -> None:
@@ -93,7 +94,14 @@ def main() -> None:
     compiled = traced.lower().compile()
     compile_s, compile_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     if args.hlo_dir is not None:
-        write_module_texts(args.hlo_dir, traced, compiled)
+        # qdrl.bench imports only jax: it loads from the source tree in QDax's environment too.
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from qdrl.bench import module_texts
+
+        out = Path(args.hlo_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        for name, text in module_texts(traced, compiled).items():
+            (out / f"{name}.txt").write_text(text)
     t0 = time.perf_counter()
     repertoire, _metrics = compiled(repertoire, emitter_state, key)
     jax.block_until_ready(repertoire)
