@@ -62,5 +62,6 @@ if __name__ == "__main__":
     zdt("mo_zdt1_40k_vs_pymoo.jsonl", 2 / 3)
     zdt("mo_zdt1_redraws0_vs_pymoo.jsonl", 2 / 3)
     zdt("mo_zdt1_pruning_vs_pymoo.jsonl", 2 / 3)
+    zdt("mo_zdt1_spea2_30seeds_vs_pymoo.jsonl", 2 / 3)
     zdt("mo_dtlz2_pruning_vs_pymoo.jsonl", 1 - np.pi / 6)
     mome()
