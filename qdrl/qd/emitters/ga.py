@@ -60,24 +60,28 @@ def isoline_variation(
     Vassiliades & Mouret 2018, "Discovering the elite hypervolume by leveraging
     interspecies correlation" (GECCO). The line coefficient is one scalar per
     individual, shared by all leaves of its pytree (QDax draws one per gene, which
-    loses the "line" direction). Keys: `line_key, iso_key = split(key)`; the line
-    coefficients are `normal(line_key, (n,))`, the isotropic noise of leaf i is
-    `normal(split(iso_key, num_leaves)[i], leaf.shape)`.
+    loses the "line" direction). All the noise is one draw, `normal(key, (n, 1 + d))`
+    with d the number of entries of an individual over all its leaves: column 0 holds
+    the line coefficients, the next columns the isotropic noise of the leaves in
+    their flattening order (leaf i's entries in row-major order). One random-number
+    program instead of one per leaf and one for the line: a policy of six leaves
+    compiles six fewer (on a GPU, runs six fewer kernel groups).
     """
     leaves_1, treedef = jax.tree.flatten(x1)
     leaves_2 = _same_structure_leaves(treedef, x2)
     n = _batch_size(x1)
-    line_key, iso_key = jax.random.split(key)
-    line = jax.random.normal(line_key, (n,))
-    iso_keys = jax.random.split(iso_key, len(leaves_1))
+    sizes = [math.prod(a.shape[1:]) for a in leaves_1]
+    noise = jax.random.normal(key, (n, 1 + sum(sizes)))
+    line = noise[:, 0]
     children = []
-    for a, b, k in zip(leaves_1, leaves_2, iso_keys, strict=True):
+    start = 1
+    for a, b, size in zip(leaves_1, leaves_2, sizes, strict=True):
         if a.shape != b.shape:
             raise ValueError(f"isoline_variation: parents differ in shape, {a.shape} vs {b.shape}")
         coeff = line.reshape((n,) + (1,) * (a.ndim - 1)).astype(a.dtype)
-        child = (
-            a + iso_sigma * jax.random.normal(k, a.shape, a.dtype) + line_sigma * coeff * (b - a)
-        )
+        iso = noise[:, start : start + size].reshape(a.shape).astype(a.dtype)
+        start += size
+        child = a + iso_sigma * iso + line_sigma * coeff * (b - a)
         if minval is not None or maxval is not None:
             child = jnp.clip(child, minval, maxval)
         children.append(child)

@@ -113,11 +113,11 @@ def _filled_indices(key: PRNGKey, filled: Array, num_samples: int) -> tuple[Arra
     counts = jnp.cumsum(filled.astype(jnp.int32))
     total = counts[-1]
     # The filled cells in order: filled cell c goes to slot counts[c] - 1; empty cells
-    # go to distinct out-of-range slots, dropped (so every index is unique).
+    # go to distinct out-of-range slots, dropped (so every index is unique). The scatter
+    # writes into the cell indices themselves: slots past the filled count keep stale
+    # values that no rank reaches, and no buffer of zeros is built (one program fewer).
     slot = jnp.where(filled, counts - 1, num_cells + cell)
-    compact = jnp.zeros((num_cells,), jnp.int32).at[slot].set(
-        cell, mode="drop", unique_indices=True
-    )
+    compact = cell.at[slot].set(cell, mode="drop", unique_indices=True)
     bits = jax.random.bits(key, (num_samples,), jnp.uint32)
     ranks = bits % jnp.maximum(total, 1).astype(jnp.uint32)
     return jnp.where(total > 0, compact[ranks.astype(jnp.int32)], 0), total
