@@ -74,9 +74,14 @@ def test_fronts_equal_brute_force_without_overflow_and_stay_non_dominated_with_i
             if rep is big:
                 assert sorted(tuple(p) for p in front.tolist()) == expected
             else:
-                assert len(front) == min(3, len(expected))
-                assert {tuple(p) for p in front.tolist()} <= set(expected)
-                if len(expected) > 3:  # crowding keeps both extremes of each objective
+                # A bounded front forgets what its overflows dropped: a point dropped early
+                # (or a copy of a kept one) can be on the brute-force front at the end, and a
+                # later point that only a dropped one dominated can be kept. What always holds:
+                # at most 3 members, each one offered to this cell, and both extremes kept (the
+                # best of each objective is never dominated and crowding never drops it).
+                assert len(front) <= 3
+                assert {tuple(p) for p in front.tolist()} <= {tuple(p.tolist()) for p in offered[c]}
+                if expected:
                     best = np.array(expected)
                     assert front[:, 0].max() == best[:, 0].max()
                     assert front[:, 1].max() == best[:, 1].max()
