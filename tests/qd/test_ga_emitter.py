@@ -44,8 +44,8 @@ def test_isoline_matches_the_formula_with_the_same_keys() -> None:
     x2 = jax.random.uniform(jax.random.PRNGKey(2), (3, 4))
     key = jax.random.PRNGKey(3)
     child = isoline_variation(x1, x2, key, iso_sigma=0.1, line_sigma=0.3)
-    noise = np.asarray(jax.random.normal(key, (3, 5)))  # the line coefficient, then the 4 genes' noise
-    line, iso = noise[:, 0], noise[:, 1:]
+    noise = np.asarray(jax.random.normal(key, (15,)))  # 3 line coefficients, then 3 x 4 genes' noise
+    line, iso = noise[:3], noise[3:].reshape(3, 4)
     expected = np.asarray(x1) + 0.1 * iso + 0.3 * line[:, None] * np.asarray(x2 - x1)
     np.testing.assert_allclose(np.asarray(child), expected, rtol=1e-6, atol=1e-6)
 
@@ -70,15 +70,16 @@ def test_isoline_line_component_is_along_the_parents_on_every_leaf() -> None:
 
 
 def test_isoline_noise_of_a_pytree_is_one_draw_split_over_the_leaves() -> None:
-    # Leaves flatten in key order ("b" then "w"): column 0 is the line, then b's 4 entries, then w's 3.
+    # Leaves flatten in key order ("b" then "w"): 6 line coefficients, then b's 6 x 4 entries, then w's 6 x 3.
     x1 = {"w": jnp.zeros((6, 3)), "b": jnp.zeros((6, 2, 2))}
     x2 = {"w": jnp.ones((6, 3)), "b": jnp.ones((6, 2, 2))}
     key = jax.random.PRNGKey(11)
     child = isoline_variation(x1, x2, key, iso_sigma=0.5, line_sigma=2.0)
-    noise = np.asarray(jax.random.normal(key, (6, 8)))
-    line = 2.0 * noise[:, :1]
-    np.testing.assert_allclose(np.asarray(child["b"]).reshape(6, 4), line + 0.5 * noise[:, 1:5], atol=1e-6)
-    np.testing.assert_allclose(np.asarray(child["w"]), line + 0.5 * noise[:, 5:], atol=1e-6)
+    noise = np.asarray(jax.random.normal(key, (6 * 8,)))
+    line = 2.0 * noise[:6, None]
+    b_noise, w_noise = noise[6:30].reshape(6, 4), noise[30:].reshape(6, 3)
+    np.testing.assert_allclose(np.asarray(child["b"]).reshape(6, 4), line + 0.5 * b_noise, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(child["w"]), line + 0.5 * w_noise, atol=1e-6)
     # Independent noise per entry: no two columns equal.
     iso = np.concatenate([np.asarray(child["b"]).reshape(6, 4), np.asarray(child["w"])], 1) - line
     assert len({tuple(np.round(c, 6)) for c in iso.T}) == 7

@@ -60,27 +60,29 @@ def isoline_variation(
     Vassiliades & Mouret 2018, "Discovering the elite hypervolume by leveraging
     interspecies correlation" (GECCO). The line coefficient is one scalar per
     individual, shared by all leaves of its pytree (QDax draws one per gene, which
-    loses the "line" direction). All the noise is one draw, `normal(key, (n, 1 + d))`
-    with d the number of entries of an individual over all its leaves: column 0 holds
-    the line coefficients, the next columns the isotropic noise of the leaves in
-    their flattening order (leaf i's entries in row-major order). One random-number
-    program instead of one per leaf and one for the line: a policy of six leaves
-    compiles six fewer (on a GPU, runs six fewer kernel groups).
+    loses the "line" direction). All the noise is one flat draw,
+    `normal(key, (n * (1 + d),))` with d the number of entries of an individual over
+    all its leaves: its first n values are the line coefficients, then each leaf in
+    flattening order takes the next n * size values, reshaped to the leaf's (n, ...).
+    One random-number program instead of one per leaf and one for the line (a policy
+    of six leaves compiles six fewer; on a GPU, launches six fewer kernel groups), and
+    a flat one: XLA's code for a one-dimensional draw is smaller than for an (n, d) one
+    (the arm's CPU step: 0.91 MB of LLVM IR against 1.17 MB).
     """
     leaves_1, treedef = jax.tree.flatten(x1)
     leaves_2 = _same_structure_leaves(treedef, x2)
     n = _batch_size(x1)
     sizes = [math.prod(a.shape[1:]) for a in leaves_1]
-    noise = jax.random.normal(key, (n, 1 + sum(sizes)))
-    line = noise[:, 0]
+    noise = jax.random.normal(key, (n * (1 + sum(sizes)),))
+    line = noise[:n]
     children = []
-    start = 1
+    start = n
     for a, b, size in zip(leaves_1, leaves_2, sizes, strict=True):
         if a.shape != b.shape:
             raise ValueError(f"isoline_variation: parents differ in shape, {a.shape} vs {b.shape}")
         coeff = line.reshape((n,) + (1,) * (a.ndim - 1)).astype(a.dtype)
-        iso = noise[:, start : start + size].reshape(a.shape).astype(a.dtype)
-        start += size
+        iso = noise[start : start + n * size].reshape(a.shape).astype(a.dtype)
+        start += n * size
         child = a + iso_sigma * iso + line_sigma * coeff * (b - a)
         if minval is not None or maxval is not None:
             child = jnp.clip(child, minval, maxval)
