@@ -59,8 +59,8 @@ def isoline_variation(
 
     Vassiliades & Mouret 2018, "Discovering the elite hypervolume by leveraging
     interspecies correlation" (GECCO). The line coefficient is one scalar per
-    individual, shared by all leaves of its pytree (QDax draws one per gene, which
-    loses the "line" direction). All the noise is one flat draw,
+    individual, shared by all leaves of its pytree (as QDax 0.5.0 draws it; one per
+    gene would lose the "line" direction). All the noise is one flat draw,
     `normal(key, (n * (1 + d),))` with d the number of entries of an individual over
     all its leaves: its first n values are the line coefficients, then each leaf in
     flattening order takes the next n * size values, reshaped to the leaf's (n, ...).
