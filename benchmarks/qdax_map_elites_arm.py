@@ -96,12 +96,9 @@ def main() -> None:
     if args.hlo_dir is not None:
         # qdrl.bench imports only jax: it loads from the source tree in QDax's environment too.
         sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-        from qdrl.bench import module_texts
+        from qdrl.bench import write_module_texts
 
-        out = Path(args.hlo_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        for name, text in module_texts(traced, compiled).items():
-            (out / f"{name}.txt").write_text(text)
+        write_module_texts(args.hlo_dir, traced, compiled)
     t0 = time.perf_counter()
     repertoire, _metrics = compiled(repertoire, emitter_state, key)
     jax.block_until_ready(repertoire)

@@ -319,6 +319,14 @@ def module_texts(traced: Any, compiled: Any) -> dict[str, str]:
     return texts
 
 
+def write_module_texts(directory: str | Path, traced: Any, compiled: Any) -> None:
+    """Writes each text of `module_texts` to DIRECTORY/NAME.txt (the directory is created)."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, text in module_texts(traced, compiled).items():
+        (out / f"{name}.txt").write_text(text)
+
+
 def per_iteration(profile: dict[str, Any], iterations: int) -> dict[str, Any]:
     """`hlo_profile` of a scanned run divided by its iterations (rounded to 0.01)."""
 

@@ -134,6 +134,21 @@ def test_hlo_profile_counts_loops_fusions_and_the_costliest_branch() -> None:
 
 
 
+def test_write_module_texts_writes_the_compiled_and_lowered_programs(tmp_path: Path) -> None:
+    import jax
+    import jax.numpy as jnp
+
+    from qdrl.bench import write_module_texts
+
+    traced = jax.jit(lambda x: jnp.sin(x) * 2.0).trace(jnp.ones(4))
+    write_module_texts(tmp_path / "hlo", traced, traced.lower().compile())
+    here = jax.default_backend()
+    names = {p.name for p in (tmp_path / "hlo").iterdir()}
+    assert {f"{here}_lowered.txt", f"{here}_optimized.txt"} <= names
+    assert ("cuda_lowered.txt" in names) == (here != "gpu")
+    assert "sine" in (tmp_path / "hlo" / f"{here}_lowered.txt").read_text()
+
+
 def test_kernel_summary_finds_the_scanned_program_and_counts_its_kernels_per_step(tmp_path: Path) -> None:
     import jax
     import jax.numpy as jnp
