@@ -68,7 +68,7 @@ class RepertoireConfig:
     grid_shape: tuple[PositiveInt, ...] = (32, 32)  # grid: cells per descriptor dimension
     num_centroids: PositiveInt = 1024  # cvt: number of cells
     cvt_samples: PositiveInt = 50_000  # cvt: uniform samples clustered by k-means into centroids
-    kmeans_iters: PositiveInt = 50  # cvt: Lloyd iterations
+    kmeans_iters: PositiveInt = 50  # cvt: at most this many Lloyd iterations (after k-means++ seeding)
     # CMA-MAE's archive learning rate alpha (Fontaine & Nikolaidis 2023): thresholds apart
     # from the elites move towards accepted fitnesses; 1 with threshold_min = -inf: plain MAP-Elites.
     learning_rate: UnitFloat = 1.0

@@ -438,6 +438,21 @@ def test_cvt_centroids_reproducible_inside_box_and_spread():
     assert pairwise.min() > 0.05
 
 
+def test_cvt_centroids_close_to_a_centroidal_tessellation():
+    # Greedy k-means++ seeding then Lloyd: the mean squared distance of uniform points to
+    # their nearest centroid (the quantisation error, 1e-4 units). Hexagonal cells of area
+    # 1/128 would give 12.53 (boundary cells add to it). Seeds 0-4 here: 13.25-13.50;
+    # scikit-learn's k-means (k-means++, one start) on 10,000 samples: 13.40-13.62; Lloyd
+    # from a random subset of the samples (qdrl before) stalls at 13.43-13.75 (13.67 on
+    # average over seeds 0-2).
+    points = np.random.default_rng(123).uniform(size=(50_000, 2)).astype(np.float32)
+    errors = []
+    for seed in range(3):
+        c = np.asarray(cvt_centroids(jax.random.key(seed), 128, 10_000, (0.0, 0.0), (1.0, 1.0)))
+        errors.append(((points[:, None] - c[None]) ** 2).sum(-1).min(1).mean() * 1e4)
+    assert 12.53 < np.mean(errors) < 13.55, errors
+
+
 def test_cvt_centroids_scalar_bounds_and_errors():
     c = cvt_centroids(jax.random.key(0), 8, 200, -2.0, 2.0, num_iters=5, num_descriptors=3)
     assert c.shape == (8, 3) and bool(jnp.all(jnp.abs(c) <= 2.0))
