@@ -66,9 +66,18 @@ def target_config(gpu: str) -> str:
 
 def compile_only_device(gpu: str) -> Any:
     """A compile-only device of the CUDA plugin that describes `gpu`."""
+    import jax
     from jax.experimental import topologies
 
-    return topologies.get_topology_desc("qdrl", "cuda", target_config=target_config(gpu), topology="1x1x1").devices[0]
+    try:
+        topology = topologies.get_topology_desc("qdrl", "cuda", target_config=target_config(gpu), topology="1x1x1")
+    except (NotImplementedError, RuntimeError) as e:
+        raise SystemExit(
+            f"gpu_compile_only: no compile-only CUDA device ({e}); expected jax's CUDA plugin for jax "
+            f"{jax.__version__} on the path: pip install --target DIR --no-deps "
+            f"jax-cuda13-plugin=={jax.__version__} jax-cuda13-pjrt=={jax.__version__}, then PYTHONPATH=DIR"
+        ) from None
+    return topology.devices[0]
 
 
 def _report(t0: float, c0: float, compiled: Any, gpu: str) -> None:

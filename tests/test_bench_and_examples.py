@@ -149,6 +149,25 @@ def test_write_module_texts_writes_the_compiled_and_lowered_programs(tmp_path: P
     assert "sine" in (tmp_path / "hlo" / f"{here}_lowered.txt").read_text()
 
 
+def test_gpu_compile_only_describes_the_gpu_and_says_what_it_needs() -> None:
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import gpu_compile_only
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    text = gpu_compile_only.target_config("h200")
+    assert "core_count: 132" in text and "cuda_compute_capability { major: 9 minor: 0 }" in text
+    # Without jax's CUDA plugin: a one-line error naming it; with it, code that never
+    # compiles a traced program is told so. Either way no traceback, exit status 1.
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "gpu_compile_only.py"), "-c", "pass"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert out.returncode == 1
+    assert "CUDA plugin" in out.stderr or "never compiled" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
 def test_kernel_summary_finds_the_scanned_program_and_counts_its_kernels_per_step(tmp_path: Path) -> None:
     import jax
     import jax.numpy as jnp
