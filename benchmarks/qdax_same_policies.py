@@ -69,9 +69,9 @@ def qdax_side(seed: int, loops: int, out: str) -> None:
 
 
 def qdrl_side(path: str) -> None:
-    from qdrl.envs.brax import BraxEnv
     from qdrl.tasks import make_task
     from qdrl.tasks import policy as policy_module
+    from qdrl.tasks.policy import policy_network
 
     d = np.load(path)
     start_key = jnp.asarray(d["start_key"], jnp.uint32)
@@ -86,19 +86,14 @@ def qdrl_side(path: str) -> None:
         evaluation = jax.jit(task.scoring_fn)(genotypes, jax.random.PRNGKey(0))
     finally:
         policy_module.fixed_start_state = fixed
-    env = BraxEnv("halfcheetah", "spring", EPISODE, state_descriptor="feet_contact")
+    env = task.env  # the task's own brax environment, stepped one policy at a time
     reset, step = jax.jit(env._reset), jax.jit(env._step)
 
+    network = policy_network(env.action_size)  # qdrl's policy: the network the task evaluates
+
     def act_of(i: int) -> Any:
-        layers = [(genotypes[f"policy/~/linear_{j}"]["w"][i], genotypes[f"policy/~/linear_{j}"]["b"][i])
-                  for j in range(3)]
-
-        def act(obs: jax.Array) -> jax.Array:
-            for w, b in layers:
-                obs = jnp.tanh(obs @ w + b)
-            return obs
-
-        return jax.jit(act)
+        params = jax.tree.map(lambda x: x[i], genotypes)
+        return jax.jit(lambda obs: network.apply(params, obs))
 
     loops = len(d["loop"])
     qdrl_loop = [
