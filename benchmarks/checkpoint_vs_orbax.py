@@ -29,7 +29,7 @@ import numpy as np
 
 from qdrl import checkpoint
 from qdrl.config import load_toml
-from qdrl.experiment import build_run
+from qdrl.experiment import build_run, initial_state
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,7 @@ def state_of(spec_name: str) -> Any:
     """The spec's initial state with every float leaf filled with noise, as after training
     (an empty replay buffer is zeros, which orbax's compression would make look cheap)."""
     run, exp, _ = build_run(load_toml(ROOT / "agents" / spec_name))
-    state = run.init(jax.random.PRNGKey(exp.seed))
+    state = initial_state(run, exp.seed)
     rng = np.random.default_rng(0)
 
     def fill(x: Any) -> Any:

@@ -56,16 +56,17 @@ def run_map_elites(run_: Any, seed: int) -> tuple[np.ndarray, float]:
     from qdrl.qd.base import Evaluation
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
-    from qdrl.runners.qd import QDRun
+    from qdrl.algorithms.qd import make_repertoire
 
-    task, ec, qd = run_.qd_task, run_.emitter_cfg, run_.qd_cfg
+    task, ec, qd = run_.qd.task, run_.sections["emitter"], run_.sections["qd"]
 
     def forward_only(genotypes: Any, key: jax.Array) -> Evaluation:
         e = task.scoring_fn(genotypes, key)
         return e._replace(fitnesses=e.fitnesses[:, 0])
 
-    cvt_key, init_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)  # as QDRun._init
-    cells = QDRun.empty_repertoire(run_, cvt_key)  # the cells of MOME's repertoire, one elite each
+    cvt_key, init_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)  # as the QD recipe's
+    # The cells of MOME's repertoire, one elite each.
+    cells = make_repertoire(run_.sections["repertoire"], task, task.example_genotype(), cvt_key)
     emitter = isoline_emitter(ec.batch_size, ec.iso_sigma, ec.line_sigma)
     me = MapElites(forward_only, emitter, cells)
     state = jax.jit(me.init)(task.init_genotypes(init_key, qd.init_batch_size), run_key)
@@ -104,7 +105,7 @@ def main() -> None:
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         spec = load_spec(SPEC, [f"experiment.seed={seed}", "log.progress=false", *args.set])
         run_, _, _ = build_run(spec)
-        reference = run_.qd_task.reference_point
+        reference = run_.qd.task.reference_point
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
             summary = run(spec, Path(tmp) / "mome", overwrite=True)

@@ -33,7 +33,8 @@ def main() -> None:
     p.add_argument("--set", nargs="*", default=[], metavar="SECTION.KEY=VALUE")
     args = p.parse_args()
 
-    from qdrl.experiment import build_run
+    from qdrl.experiment import build_run, compile_chunk, initial_state, run_chunk
+    from qdrl.qd.emitters.qd_rl import make_pga_me
 
     spec = tomllib.loads(Path(args.spec).read_text())
     for item in args.set:
@@ -41,14 +42,16 @@ def main() -> None:
         section, _, field = key.partition(".")
         spec.setdefault(section, {})[field] = tomllib.loads(f"v = {value}")["v"]
     run, _, _ = build_run(spec)
-    state = run.init(jax.random.PRNGKey(0))
-    run.compile(state)
-    pg = run.map_elites.emitter.emitters[1]
-    score = jax.jit(run._task.scoring_fn)
+    assert run.qd is not None
+    state = initial_state(run, 0)
+    chunk = compile_chunk(run, state).fn
+    task = run.qd.task
+    pg = make_pga_me(task, run.sections["pg"]).emitter.emitters[1]  # the run's Q-PG emitter, rebuilt
+    score = jax.jit(task.scoring_fn)
     vary = jax.jit(jax.vmap(pg.pg_variation, in_axes=(None, 0, 0)))
     start = time.perf_counter()
     for chunk in range(args.chunks):
-        state, metrics = run.run_chunk(state)
+        state, metrics = run_chunk(run, chunk, state)
         parent_key, vary_key, eval_key, greedy_key = jax.random.split(jax.random.PRNGKey(100 + chunk), 4)
         parents = state.repertoire.sample(parent_key, 32)
         offspring = vary(state.emitter_state[1], parents, jax.random.split(vary_key, 32))

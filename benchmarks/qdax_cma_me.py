@@ -92,7 +92,7 @@ def side_qdax(seed: int, iterations: int) -> dict[str, Any]:
 def side_qdrl(seed: int, iterations: int) -> dict[str, Any]:
     import jax
 
-    from qdrl.experiment import build_run
+    from qdrl.experiment import build_run, compile_chunk, initial_state, run_chunk
 
     spec = {
         "experiment": {"algorithm": "cma_me", "seed": seed},
@@ -105,10 +105,11 @@ def side_qdrl(seed: int, iterations: int) -> dict[str, Any]:
                "initial_genotypes": "zeros"},
     }
     run, exp, _ = build_run(spec)
-    state = run.init(jax.random.PRNGKey(exp.seed))
-    compile_s = run.compile(state)
+    state = initial_state(run, exp.seed)
+    compiled = compile_chunk(run, state)
+    compile_s = compiled.seconds
     t0 = time.perf_counter()
-    state, metrics = run.run_chunk(state)
+    state, metrics = run_chunk(run, compiled.fn, state)
     jax.block_until_ready(metrics)
     run_s = time.perf_counter() - t0
     # QDax's metrics: the sum of the (already 0-100 normalised) fitnesses, coverage in %

@@ -21,7 +21,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from qdrl.experiment import build_run, load_spec
+from qdrl.experiment import build_run, compile_chunk, initial_state, load_spec, run_chunk
 
 
 def main(num_seeds: int, iterations: int, mode: str, log_every: int = 50) -> dict[str, object]:
@@ -31,15 +31,14 @@ def main(num_seeds: int, iterations: int, mode: str, log_every: int = 50) -> dic
     for seed in range(num_seeds):
         spec["experiment"]["seed"] = seed
         runs.append(build_run(spec)[0])
-    states = [r.init(jax.random.PRNGKey(s)) for s, r in enumerate(runs)]
+    states = [initial_state(r, s) for s, r in enumerate(runs)]
     jax.block_until_ready(states)
     init_s = time.perf_counter() - t0
     chunks = iterations // log_every
     if mode == "vmap":
-        me = runs[0].map_elites
         stacked = jax.tree.map(lambda *x: jnp.stack(x), *states)
         t0 = time.perf_counter()
-        chunk = jax.jit(jax.vmap(lambda s: me.run(s, log_every)), donate_argnums=0).lower(stacked).compile()
+        chunk = jax.jit(jax.vmap(runs[0].chunk), donate_argnums=0).lower(stacked).compile()
         compile_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         for _ in range(chunks):
@@ -50,10 +49,11 @@ def main(num_seeds: int, iterations: int, mode: str, log_every: int = 50) -> dic
     else:
         compile_s, run_s, qd = 0.0, 0.0, []
         for r, state in zip(runs, states, strict=True):
-            compile_s += r.compile(state)
+            compiled = compile_chunk(r, state)
+            compile_s += compiled.seconds
             t0 = time.perf_counter()
             for _ in range(chunks):
-                state, metrics = r.run_chunk(state)
+                state, metrics = run_chunk(r, compiled.fn, state)
                 jax.device_get(metrics)
             run_s += time.perf_counter() - t0
             qd.append(float(metrics["qd_score"][-1]))

@@ -4,7 +4,7 @@ Runs, with the same number of environment steps, the same SAC settings and the
 same evaluation budget (16 deterministic episodes per log point offered to a
 32x32 grid archive of the final x-y position over [-1, 1]^2):
 
-1. SAC alone on the task reward (`qdrl.runners.rl`);
+1. SAC alone on the task reward (`qdrl.algorithms.rl`);
 2. DIAYN, 8 skills, discriminator on x-y (`agents/diayn_point_maze_cpu.toml`);
 3. SMERL on DIAYN, 5 skills, with R* = SAC's final evaluation return (the paper's
    protocol: R* is the return of a policy trained on the task alone) and

@@ -2,7 +2,7 @@
 
 In a page, a comment marker is replaced by a Markdown table (qdrl.docgen):
 
-    <!-- keys qdrl.runners.qd:RepertoireConfig repertoire -->   the keys of [repertoire]
+    <!-- keys qdrl.algorithms.qd:RepertoireConfig repertoire -->   the keys of [repertoire]
     <!-- tasks -->                                              the task catalogue
     <!-- specs map_elites_ cvt_map_elites_ -->                  the packaged specs by prefix
 """

@@ -683,7 +683,7 @@ def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[
     """
     from qdrl.agents.dads import DADSConfig
     from qdrl.agents.diayn import DIAYNConfig
-    from qdrl.runners.skills import skill_trainer_builder
+    from qdrl.algorithms.skills import skill_trainer_builder
 
     algorithms: tuple[str, ...] = ("sac", "diayn", "dads", "smerl_diayn", "smerl_dads")
     if config is not None:

@@ -87,10 +87,10 @@ def case_spec(name: str, quick: bool, devices: int, seed: int = 0) -> dict[str, 
 
 
 def _count(run: Any, state: Any) -> tuple[str, float]:
-    """What a case's throughput counts (evaluations on the arm, else env steps) and how many
-    its state has done so far."""
-    if hasattr(run, "map_elites"):
-        if run.task == "arm":
+    """What a case's throughput counts (evaluations on a task without environment, else env
+    steps) and how many its state has done so far."""
+    if run.qd is not None:
+        if run.qd.task.env is None:
             return "evaluations", float(state.evaluations)
         return "env_steps", float(state.env_steps)
     return "env_steps", float(state.train.env_steps)
@@ -100,23 +100,25 @@ def measure(
     names: list[str], device_counts: list[int], quick: bool, repeats: int, seed: int = 0
 ) -> list[dict[str, Any]]:
     """In this process: each case on each device count, timed chunk by chunk, alternating."""
-    from qdrl.experiment import build_run
+    from qdrl.experiment import build_run, compile_chunk, initial_state, run_chunk
 
     records = []
     for name in names:
-        runs, states, compile_s = {}, {}, {}
+        runs, states, chunks, compile_s = {}, {}, {}, {}
         seconds = dict.fromkeys(device_counts, 0.0)
         done = dict.fromkeys(device_counts, 0.0)
         for d in device_counts:
             run, _, _ = build_run(case_spec(name, quick, d, seed))
-            state = run.init(jax.random.PRNGKey(seed))
-            compile_s[d] = run.compile(state)
-            runs[d], states[d] = run, jax.block_until_ready(run.run_chunk(state))[0]  # warm-up chunk
+            state = initial_state(run, seed)
+            compiled = compile_chunk(run, state)
+            compile_s[d], chunks[d] = compiled.seconds, compiled.fn
+            runs[d] = run
+            states[d] = jax.block_until_ready(run_chunk(run, compiled.fn, state))[0]  # warm-up chunk
         for _ in range(repeats):
             for d in device_counts:
                 _, before = _count(runs[d], states[d])
                 t0 = time.perf_counter()
-                states[d] = jax.block_until_ready(runs[d].run_chunk(states[d]))[0]
+                states[d] = jax.block_until_ready(run_chunk(runs[d], chunks[d], states[d]))[0]
                 seconds[d] += time.perf_counter() - t0
                 done[d] += _count(runs[d], states[d])[1] - before
         one = done[device_counts[0]] / seconds[device_counts[0]]

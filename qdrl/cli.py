@@ -62,11 +62,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         RunInterrupted,
         check_spec_file,
         default_out_dir,
-        parse_seeds,
         resume_command,
-        run_seeds,
         run_spec,
     )
+    from qdrl.sweeps import parse_seeds, run_seeds
 
     if args.devices is not None:
         args.set = [*args.set, f"experiment.devices={args.devices}"]
@@ -116,11 +115,10 @@ def _cmd_list(args: argparse.Namespace) -> int:
     with contextlib.redirect_stdout(sys.stderr):  # mujoco-mjx prints import notices
         import brax.envs  # noqa: F401
     from qdrl import specs
+    from qdrl.algorithms import ALGORITHMS
     from qdrl.envs import PURE_JAX_ENVS
     from qdrl.envs.brax import BACKENDS, brax_env_names
-    from qdrl.experiment import RUNS, _load_builtin_runs
 
-    _load_builtin_runs()
     directory = specs.spec_dir()
     names = specs.spec_names()
     where = f" ({directory}; run one by name: qdrl run NAME)" if directory is not None else ""
@@ -130,8 +128,9 @@ def _cmd_list(args: argparse.Namespace) -> int:
         assert directory is not None
         print(f"  {name:<{width}}  {_shorten(specs.describe(directory / f'{name}.toml'))}".rstrip())
     print("algorithms:")
-    for name in sorted(RUNS):
-        print(f"  {name}")
+    width = max(len(n) for n in ALGORITHMS)
+    for name in sorted(ALGORITHMS):
+        print(f"  {name:<{width}}  {ALGORITHMS[name].description}".rstrip())
     from qdrl.qd.emitters.registry import EMITTER_KINDS
 
     print("emitter kinds (the [emitter] kind of QD specs, or each [[emitters]] of a pool):")

@@ -33,8 +33,8 @@ import jax
 __all__ = ["cache_dir", "cache_hits", "enabled", "estimate", "record", "spec_key"]
 
 _TIMES_FILE = "compile_times.json"
-# Keys that do not change what is compiled (length, logging, seed, label).
-_NOT_COMPILED = ("log", "experiment.seed", "experiment.name", "qd.num_iterations", "train.total_env_steps")
+# Keys that do not change what is compiled (logging, seed, label; and the run's length key).
+_NOT_COMPILED = ("log", "experiment.seed", "experiment.name")
 
 
 def cache_dir() -> Path:
@@ -105,15 +105,17 @@ def cache_hits() -> Iterator[dict[str, int]]:
         jax.monitoring.unregister_event_listener(listen)
 
 
-def spec_key(config_toml: str) -> str:
-    """A digest of a resolved spec, leaving out the keys that do not change what is compiled."""
+def spec_key(config_toml: str, length_key: str = "") -> str:
+    """A digest of a resolved spec, leaving out the keys that do not change what is compiled
+    (logging, seed, name, and `length_key`: the algorithm's run length, `Recipe.length_key`)."""
     spec = tomllib.loads(config_toml)
+    skip = (*_NOT_COMPILED, length_key)
     flat = {
         f"{section}{'' if isinstance(tables, dict) else f'[{i}]'}.{key}": value
         for section, tables in spec.items()
         for i, table in enumerate([tables] if isinstance(tables, dict) else tables)  # [[section]]: a list
         for key, value in table.items()
-        if section not in _NOT_COMPILED and f"{section}.{key}" not in _NOT_COMPILED
+        if section not in skip and f"{section}.{key}" not in skip
     }
     return hashlib.sha256(json.dumps(flat, sort_keys=True).encode()).hexdigest()[:16]
 

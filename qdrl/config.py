@@ -86,6 +86,36 @@ class OneOf:
         return f"{'names' if plural else 'one'} of {sorted(self.names())}"
 
 
+@dataclasses.dataclass(frozen=True)
+class Nested:
+    """A field holding a sub-config whose keys sit flat in the parent's spec table.
+
+    `Annotated[TD3Config, Nested(("critic_learning_rate", "critic_lr"), ...)]`: each
+    pair is (spec key, spec key of the sub-config), in table order; `Nested()` with
+    no pairs takes every key of the sub-config under its own name. The keys are
+    checked against the sub-config's declarations and errors name them as the spec
+    writes them (`pg.critic_learning_rate: ...`); keys not listed keep the value of
+    the field's default. A typed config thus nests by role (Acme's habit) while
+    the spec stays one flat section.
+    """
+
+    keys: tuple[tuple[str, str], ...]
+
+    def __init__(self, *keys: tuple[str, str]) -> None:
+        object.__setattr__(self, "keys", tuple(keys))
+
+
+@dataclasses.dataclass(frozen=True)
+class OtherSection:
+    """A field of a config that another spec section gives: `Annotated[GAConfig, OtherSection("emitter")]`.
+
+    It is not a key of the config's own section (`build` leaves its default, `as_table`
+    leaves it out); the recipe that reads both sections sets it.
+    """
+
+    section: str
+
+
 def _num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else repr(x)
 
@@ -192,6 +222,78 @@ def _resolved_hints(owner: Hashable) -> dict[str, Any]:
     return typing.get_type_hints(owner, include_extras=True)
 
 
+def _nested(cls: type[Any]) -> dict[str, Nested]:
+    """field name -> its `Nested` marker, for the nested sub-config fields of dataclass `cls`."""
+    out = {}
+    for name, tp in _hints(cls).items():
+        if typing.get_origin(tp) is Annotated:
+            marker = next((m for m in typing.get_args(tp)[1:] if isinstance(m, Nested)), None)
+            if marker is not None:
+                out[name] = marker
+    return out
+
+
+def _other_section(tp: Any) -> str | None:
+    if typing.get_origin(tp) is Annotated:
+        marker = next((m for m in typing.get_args(tp)[1:] if isinstance(m, OtherSection)), None)
+        return None if marker is None else marker.section
+    return None
+
+
+def table_keys(cls: Any) -> dict[str, tuple[tuple[str, ...], Any]]:
+    """The spec keys of a section parsed into dataclass `cls`, in table order:
+    key -> (the path of fields to its value, its declared type)."""
+    return _table_keys(cls)
+
+
+@functools.cache
+def _table_keys(cls: Hashable) -> dict[str, tuple[tuple[str, ...], Any]]:
+    assert isinstance(cls, type)
+    hints, nested = _hints(cls), _nested(cls)
+    keys: dict[str, tuple[tuple[str, ...], Any]] = {}
+    for f in dataclasses.fields(cls):
+        if not f.init or _other_section(hints[f.name]) is not None:
+            continue
+        if f.name not in nested:
+            keys[f.name] = ((f.name,), hints[f.name])
+            continue
+        sub = table_keys(typing.get_args(hints[f.name])[0])
+        pairs = nested[f.name].keys or tuple((k, k) for k in sub)
+        for key, sub_key in pairs:
+            path, tp = sub[sub_key]
+            keys[key] = ((f.name, *path), tp)
+    return keys
+
+
+def field_default(f: dataclasses.Field[Any]) -> Any:
+    """The default value of dataclass field `f` (dataclasses.MISSING when it has none)."""
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return f.default
+
+
+def _get(obj: Any, path: tuple[str, ...]) -> Any:
+    for name in path:
+        obj = getattr(obj, name)
+    return obj
+
+
+def _assemble(cls: type[Any], values: Mapping[tuple[str, ...], Any]) -> dict[str, Any]:
+    """Constructor arguments of `cls` from values by field path; nested sub-configs are their
+    field's default with the given values replaced."""
+    kwargs: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        own = {path[1:]: v for path, v in values.items() if path[0] == f.name}
+        if not own:
+            continue
+        if () in own:
+            kwargs[f.name] = own[()]
+        else:
+            sub = field_default(f)
+            kwargs[f.name] = dataclasses.replace(sub, **_assemble(type(sub), own))
+    return kwargs
+
+
 def check_table(data: Any, section: str) -> Mapping[str, Any]:
     """`data` if it is a TOML table; otherwise ConfigError naming the section."""
     if not isinstance(data, Mapping):
@@ -205,22 +307,24 @@ def check_keys(cls: type[Any], data: Any, section: str) -> dict[str, Any]:
     """The keys given in `data` for dataclass `cls`, each checked and coerced; no check across keys.
 
     For sections whose other keys default to values known only later (e.g. from a
-    task); `build` does this and then the rest.
+    task); `build` does this and then the rest. Keys of nested sub-configs
+    (`Nested`) are checked against the sub-config's declarations.
     """
     data = check_table(data, section)
-    hints = _hints(cls)
-    fields = {f.name for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(data) - fields)
+    keys = table_keys(cls)
+    unknown = sorted(set(data) - set(keys))
     if unknown:
         raise ConfigError(
-            f"{section}.{unknown[0]}: unknown key; expected one of {sorted(fields)}"
+            f"{section}.{unknown[0]}: unknown key; expected one of {sorted(keys)}"
         )
-    return {k: coerce(v, hints[k], f"{section}.{k}") for k, v in data.items()}
+    return {k: coerce(v, keys[k][1], f"{section}.{k}") for k, v in data.items()}
 
 
 def build(cls: type[Any], data: Any, section: str) -> Any:
     """An instance of dataclass `cls` from `data`, checked; errors name `section.key`."""
-    kwargs = check_keys(cls, data, section)
+    given = check_keys(cls, data, section)
+    keys = table_keys(cls)
+    kwargs = _assemble(cls, {keys[k][0]: v for k, v in given.items()})
     hints = _hints(cls)
     for f in dataclasses.fields(cls):
         missing = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
@@ -242,12 +346,11 @@ def build(cls: type[Any], data: Any, section: str) -> Any:
 
 
 def check_fields(obj: Any, section: str) -> None:
-    """Raises ConfigError naming `section.<field>` for the first field of dataclass `obj`
-    whose value its declared type refuses (for configs built in Python, not parsed)."""
-    hints = _hints(type(obj))
-    for f in dataclasses.fields(obj):
-        if f.init:
-            coerce(getattr(obj, f.name), hints[f.name], f"{section}.{f.name}")
+    """Raises ConfigError naming `section.<key>` for the first key of dataclass `obj` whose
+    value its declared type refuses (for configs built in Python, not parsed); the keys of
+    nested sub-configs (`Nested`) are checked under their spec names."""
+    for key, (path, tp) in table_keys(type(obj)).items():
+        coerce(_get(obj, path), tp, f"{section}.{key}")
 
 
 def check_params(
@@ -344,10 +447,12 @@ def dump_toml(sections: Mapping[str, Mapping[str, Any] | Sequence[Mapping[str, A
 
 
 def as_table(obj: Any) -> dict[str, Any]:
-    """A config dataclass (or a plain mapping) as a flat dict, tuples as lists, for TOML."""
+    """A config dataclass (or a plain mapping) as a flat dict of its spec keys (nested
+    sub-configs flattened, `Nested`), tuples as lists, for TOML."""
     if isinstance(obj, Mapping):
         return {k: list(v) if isinstance(v, tuple) else v for k, v in obj.items()}
-    return {
-        f.name: list(v) if isinstance(v := getattr(obj, f.name), tuple) else v
-        for f in dataclasses.fields(obj)
-    }
+    out = {}
+    for key, (path, _) in table_keys(type(obj)).items():
+        value = _get(obj, path)
+        out[key] = list(value) if isinstance(value, tuple) else value
+    return out

@@ -16,7 +16,7 @@ import textwrap
 from collections.abc import Sequence
 from typing import Any
 
-from qdrl.config import _hints, _toml_value, describe
+from qdrl.config import _toml_value, describe, field_default, table_keys
 
 __all__ = ["field_comments", "keys_table", "specs_table", "tasks_table"]
 
@@ -57,17 +57,26 @@ def field_comments(cls: type) -> dict[str, str]:
     return out
 
 
-def _default(field: dataclasses.Field[Any]) -> str:
-    if field.default is not dataclasses.MISSING:
-        value = field.default
-    elif field.default_factory is not dataclasses.MISSING:
-        value = field.default_factory()
-    else:
+def _default(cls: type, path: tuple[str, ...]) -> str:
+    """The default of the key at `path` (its field's default, then the nested configs' values)."""
+    f = {f.name: f for f in dataclasses.fields(cls)}[path[0]]
+    value = field_default(f)
+    if value is dataclasses.MISSING:
         return "(required)"
+    for name in path[1:]:
+        value = getattr(value, name)
     try:
         return f"`{_toml_value(value)}`"
     except TypeError:
         return "(none)" if value is None else f"`{value!r}`"
+
+
+def _comment(cls: type, path: tuple[str, ...]) -> str:
+    """The comment of the field at `path`, in the class that holds it (a nested config's own)."""
+    owner: Any = cls
+    for name in path[:-1]:
+        owner = type(field_default({f.name: f for f in dataclasses.fields(owner)}[name]))
+    return field_comments(owner).get(path[-1], "")
 
 
 def _cell(text: str) -> str:
@@ -75,13 +84,11 @@ def _cell(text: str) -> str:
 
 
 def keys_table(cls: type, section: str) -> str:
-    """A Markdown table of the keys of spec section `[section]`, parsed into dataclass `cls`."""
-    hints = _hints(cls)
-    comments = field_comments(cls)
+    """A Markdown table of the keys of spec section `[section]`, parsed into dataclass `cls`
+    (the keys of its nested configs included, under their spec names)."""
     rows = [
-        f"| `{section}.{f.name}` | {_default(f)} | {_cell(describe(hints[f.name]))} | {_cell(comments.get(f.name, ''))} |"
-        for f in dataclasses.fields(cls)
-        if f.init
+        f"| `{section}.{key}` | {_default(cls, path)} | {_cell(describe(tp))} | {_cell(_comment(cls, path))} |"
+        for key, (path, tp) in table_keys(cls).items()
     ]
     return "\n".join(["| key | default | accepts | meaning |", "|---|---|---|---|", *rows])
 
@@ -105,7 +112,7 @@ def tasks_table(names: Sequence[str] | None = None) -> str:
 
     rows = []
     for name in names or sorted(TASKS):
-        builder = TASKS[name]
+        builder = TASKS[name].build
         task = builder()
         params = ", ".join(
             f"`{p.name}={_toml_value(p.default)}`" if p.default is not None else f"`{p.name}`"

@@ -25,14 +25,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from qdrl.config import NonNegativeInt, PositiveFloat, PositiveInt, UnitFloat, check_fields
-from qdrl.off_policy import TrainState
+from qdrl.off_policy import Trainer, TrainState
+from qdrl.placement import Placement
 from qdrl.types import Array, PRNGKey
 
 # Search spaces of the literature (QDax's SAC-PBT / TD3-PBT, used by ME-PBT,
@@ -80,23 +81,25 @@ class PBTConfig:
             if isinstance(value, list):
                 object.__setattr__(self, name, tuple(value))
 
-    def check(self) -> None:
-        check_fields(self, "pbt")
+    def check(self, section: str = "pbt") -> None:
+        """Raises ValueError naming `section.key` for a bad value (`section`: where the keys are)."""
+        s = section
+        check_fields(self, s)
         if self.num_best + self.num_replace > self.population_size:
             raise ValueError(
-                f"pbt.num_best + pbt.num_replace: expected at most pbt.population_size="
+                f"{s}.num_best + {s}.num_replace: expected at most {s}.population_size="
                 f"{self.population_size}, got {self.num_best} + {self.num_replace}"
             )
         if not self.perturb_factors:
-            raise ValueError("pbt.perturb_factors: expected a list of numbers > 0, got []")
+            raise ValueError(f"{s}.perturb_factors: expected a list of numbers > 0, got []")
         if not len(self.hparams) == len(self.low) == len(self.high):
             raise ValueError(
-                f"pbt.hparams, pbt.low, pbt.high: expected lists of one length, got "
+                f"{s}.hparams, {s}.low, {s}.high: expected lists of one length, got "
                 f"{len(self.hparams)}, {len(self.low)} and {len(self.high)} entries"
             )
         for name, lo, hi in zip(self.hparams, self.low, self.high, strict=True):
             if not lo <= hi:
-                raise ValueError(f"pbt.low: expected {name}'s low <= high, got {lo} > {hi}")
+                raise ValueError(f"{s}.low: expected {name}'s low <= high, got {lo} > {hi}")
 
 
 class SearchSpace(NamedTuple):
@@ -109,30 +112,32 @@ class SearchSpace(NamedTuple):
 
 
 def search_space(
-    agent: str, config: PBTConfig, agent_hparams: Mapping[str, Any]
+    agent: str, config: PBTConfig, agent_hparams: Mapping[str, Any], section: str = "pbt"
 ) -> SearchSpace:
     """The tuned hyperparameters of `agent` ("sac"/"td3"), checked against the agent's own.
 
-    Raises ValueError for a name the agent does not have, or a log-scaled range
-    that is not positive.
+    Raises ValueError naming `section.key` for a name the agent does not have, or a
+    log-scaled range that is not positive.
     """
     if config.hparams:
         ranges = dict(zip(config.hparams, zip(config.low, config.high, strict=True), strict=True))
     elif agent in DEFAULT_SPACES:
         ranges = DEFAULT_SPACES[agent]
     else:
-        raise ValueError(f"pbt: no default search space for agent {agent!r}; give pbt.hparams")
+        raise ValueError(f"{section}: no default search space for agent {agent!r}; give {section}.hparams")
     unknown = sorted(set(ranges) - set(agent_hparams))
     if unknown:
         raise ValueError(
-            f"pbt.hparams: {unknown[0]!r} is not a hyperparameter of {agent}; "
+            f"{section}.hparams: {unknown[0]!r} is not a hyperparameter of {agent}; "
             f"expected some of {sorted(agent_hparams)}"
         )
     names = tuple(ranges)
     log = tuple(n in LOG_UNIFORM for n in names)
     for n, is_log in zip(names, log, strict=True):
         if is_log and ranges[n][0] <= 0:
-            raise ValueError(f"pbt.low: {n} is sampled log-uniformly; expected low > 0, got {ranges[n][0]}")
+            raise ValueError(
+                f"{section}.low: {n} is sampled log-uniformly; expected low > 0, got {ranges[n][0]}"
+            )
     return SearchSpace(
         names=names,
         low=jnp.asarray([ranges[n][0] for n in names], jnp.float32),
@@ -179,8 +184,37 @@ def set_hparams(population: TrainState, space: SearchSpace, values: Array) -> Tr
 class ExploitInfo(NamedTuple):
     """Who was replaced at a PBT step, and by whom (member indices)."""
 
+    ranked: Array  # (population,) members from the highest fitness to the lowest
     replaced: Array  # (num_replace,) the worst members
     sources: Array  # (num_replace,) the member each copied
+
+
+def exploit(
+    key: PRNGKey,
+    population: TrainState,
+    fitness: Array,
+    num_best: int,
+    num_replace: int,
+    copy_buffer: bool = True,
+) -> tuple[TrainState, ExploitInfo]:
+    """PBT's exploit step on a population ranked by `fitness` (population,); NaN ranks last.
+
+    The `num_replace` lowest members take the agent (and the buffer if `copy_buffer`)
+    of members drawn uniformly from the `num_best` highest. Their environments, keys
+    and step counters stay their own. Ties rank by member index (lower first).
+    """
+    p = fitness.shape[0]
+    ranked = jnp.argsort(-jnp.where(jnp.isnan(fitness), -jnp.inf, fitness), stable=True)
+    worst = ranked[p - num_replace :]
+    sources = jax.random.choice(key, ranked[:num_best], (num_replace,))
+    take = jnp.arange(p).at[worst].set(sources)
+
+    def gather(x: Array) -> Array:
+        return x[take]
+
+    agent = jax.tree.map(gather, population.agent)
+    buffer = jax.tree.map(gather, population.buffer) if copy_buffer else population.buffer
+    return population._replace(agent=agent, buffer=buffer), ExploitInfo(ranked, worst, sources)
 
 
 def exploit_and_explore(
@@ -190,33 +224,65 @@ def exploit_and_explore(
     space: SearchSpace,
     config: PBTConfig,
 ) -> tuple[TrainState, ExploitInfo]:
-    """One PBT step on a population ranked by `fitness` (population,); NaN ranks last.
-
-    The `num_replace` lowest members take the agent (and the buffer if
-    `copy_buffer`) of members drawn uniformly from the `num_best` highest, then
-    explore from the copied hyperparameters. Their environments, keys and step
-    counters stay their own. Ties rank by member index (lower first).
-    """
+    """One PBT step (Jaderberg et al. 2017): `exploit`, then the replaced members explore from
+    the hyperparameters they copied (`explore`: perturbed or resampled, as `config` says)."""
     p = fitness.shape[0]
     if p != config.population_size:
         raise ValueError(f"fitness: expected shape ({config.population_size},), got {fitness.shape}")
     source_key, explore_key = jax.random.split(key)
-    ranked = jnp.argsort(-jnp.where(jnp.isnan(fitness), -jnp.inf, fitness), stable=True)
-    best = ranked[: config.num_best]
-    worst = ranked[p - config.num_replace :]
-    sources = jax.random.choice(source_key, best, (config.num_replace,))
-    take = jnp.arange(p).at[worst].set(sources)
-
-    def gather(x: Array) -> Array:
-        return x[take]
-
-    agent = jax.tree.map(gather, population.agent)
-    buffer = jax.tree.map(gather, population.buffer) if config.copy_buffer else population.buffer
-    out = population._replace(agent=agent, buffer=buffer)
+    out, info = exploit(source_key, population, fitness, config.num_best, config.num_replace, config.copy_buffer)
     values = get_hparams(out, space)
-    new_values = explore(explore_key, space, values[worst], config)
-    out = set_hparams(out, space, values.at[worst].set(new_values))
-    return out, ExploitInfo(replaced=worst, sources=sources)
+    new_values = explore(explore_key, space, values[info.replaced], config)
+    out = set_hparams(out, space, values.at[info.replaced].set(new_values))
+    return out, info
+
+
+class PopulationStep(NamedTuple):
+    """One log interval of a population: trained, evaluated, and exploited when due."""
+
+    population: TrainState
+    train_metrics: dict[str, Array]  # the loop's metrics, (population,) each
+    evaluation: dict[str, Array]  # `Trainer.evaluate` of every member, (population, ...) each
+    hparams: Array  # (population, k) the hyperparameters that earned the evaluation
+
+
+class Population(NamedTuple):
+    """A PBT population of one off-policy agent (`make_population`): pure, jittable functions.
+
+    init(member_key, hparam_key) -> population    members with hyperparameters drawn from the space
+    step(population, eval_key, pbt_key, due) -> PopulationStep
+    """
+
+    init: Callable[[PRNGKey, PRNGKey], TrainState]
+    step: Callable[[TrainState, PRNGKey, PRNGKey, Array], PopulationStep]
+
+
+def make_population(
+    trainer: Trainer, space: SearchSpace, config: PBTConfig, placement: Placement | None = None
+) -> Population:
+    """PBT of `trainer`'s agent: `config.population_size` members trained by one vmapped chunk,
+    each evaluated deterministically, ranked by evaluation return; `exploit_and_explore` when
+    `due`. On several devices (`placement`) each trains its share of the members."""
+    n = config.population_size
+    place = placement or Placement()
+
+    def init(member_key: PRNGKey, hparam_key: PRNGKey) -> TrainState:
+        population = jax.vmap(trainer.init)(jax.random.split(member_key, n))
+        return set_hparams(population, space, sample(hparam_key, space, n))
+
+    def step(population: TrainState, eval_key: PRNGKey, pbt_key: PRNGKey, due: Array) -> PopulationStep:
+        population, metrics = jax.vmap(trainer.run_chunk)(place.batched(population))
+        ev = jax.vmap(trainer.evaluate)(population.agent, jax.random.split(eval_key, n))
+        fitness = ev["eval_return"]  # (n,)
+        hparams = get_hparams(population, space)  # before explore: what earned `fitness`
+
+        def exploit_step(p: TrainState) -> TrainState:
+            return exploit_and_explore(pbt_key, p, fitness, space, config)[0]
+
+        population = place.batched(jax.lax.cond(due, exploit_step, lambda p: p, population))
+        return PopulationStep(population, metrics, ev, hparams)
+
+    return Population(init, step)
 
 
 def buffer_bytes(buffer: Any) -> int:

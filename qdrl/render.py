@@ -34,7 +34,7 @@ def _kind(run: LoadedRun) -> tuple[str, tuple[str, ...]]:
     from qdrl.envs.brax import WALLED_ENVS, BraxEnv
     from qdrl.envs.point_maze import PointMazeEnv
 
-    env = run.require_qd("render").qd_task.env
+    env = run.require_qd("render").task.env
     if isinstance(env, PointMazeEnv):
         return "point_maze", (".png",)
     if isinstance(env, BraxEnv):

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -26,13 +25,16 @@ import jax
 import numpy as np
 
 from qdrl import checkpoint
+from qdrl.algorithms.base import Algorithm, QDParts
 from qdrl.config import ConfigError, load_toml
+from qdrl.experiment import build_run
+from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
+from qdrl.qd.repertoires import passive_archive, to_table
 
 if TYPE_CHECKING:
     import pandas as pd
 
     from qdrl.qd.repertoires import CellRepertoire
-    from qdrl.runners.qd import QDRun
 
 __all__ = [
     "Elite",
@@ -43,7 +45,6 @@ __all__ = [
     "load_metrics",
     "load_repertoires",
     "load_run",
-    "write_reevaluation",
 ]
 
 
@@ -239,13 +240,17 @@ class LoadedRun:
         return str(experiment.get("name") or self.path.name)
 
     @property
-    def run(self) -> Any:
-        """The run rebuilt from config.toml (`qdrl.experiment.Run`; nothing compiled)."""
+    def run(self) -> Algorithm:
+        """The algorithm rebuilt from config.toml (`qdrl.algorithms.base.Algorithm`; nothing
+        compiled). A CVT repertoire takes its cells from repertoire.npz when there is one."""
         if self._run is None:
-            from qdrl.experiment import build_run
-
+            npz = self.path / "repertoire.npz"
+            centroids = None
+            if npz.is_file():
+                with np.load(npz) as f:
+                    centroids = f["centroids"] if "centroids" in f.files else None
             try:
-                self._run = build_run(self.config)[0]
+                self._run = build_run(self.config, centroids=centroids)[0]
             except ConfigError as e:
                 raise RunError(f"{self.path / 'config.toml'}: {e}") from e
         return self._run
@@ -253,23 +258,19 @@ class LoadedRun:
     @property
     def is_qd(self) -> bool:
         """Whether the run is a QD run (its repertoire stores genotypes)."""
-        from qdrl.runners.qd import QDRun
-
-        return isinstance(self.run, QDRun)
+        return self.run.qd is not None
 
     @property
     def qd_task(self) -> Any:
         """The task of a QD run (`qdrl.tasks.Task`); RunError for other runs."""
-        return self.require_qd("qd_task").qd_task
+        return self.require_qd("qd_task").task
 
-    def require_qd(self, what: str) -> QDRun:
-        """The rebuilt QD run; RunError, saying `what` needed it, for other runs."""
-        from qdrl.runners.qd import QDRun
-
-        run = self.run
-        if not isinstance(run, QDRun):
+    def require_qd(self, what: str) -> QDParts:
+        """The rebuilt QD run's task and repertoire; RunError, saying `what` needed it, for other runs."""
+        qd = self.run.qd
+        if qd is None:
             raise RunError(f"{what}: expected a QD run whose repertoire stores genotypes; {self._no_genotype()}")
-        return run
+        return qd
 
     def _no_genotype(self) -> str:
         return (
@@ -298,12 +299,12 @@ class LoadedRun:
 
     def _from_npz(self, path: Path) -> Any:
         """The repertoire of `repertoire.npz`, or None if the file holds no genotypes."""
-        run = self.require_qd("repertoire")
+        qd = self.require_qd("repertoire")
         with np.load(path) as f:
             arrays = {k: f[k] for k in f.files}
         if not {"centroids", "fitnesses", "descriptors"} <= set(arrays):
             raise RunError(f"{path}: expected the export of a cell repertoire (centroids, fitnesses, descriptors)")
-        empty = run.empty_repertoire(centroids=arrays["centroids"])
+        empty = qd.empty_repertoire(arrays["centroids"])
         named = jax.tree_util.tree_flatten_with_path(empty.genotypes)[0]
         names = ["genotypes" + jax.tree_util.keystr(p) for p, _ in named]
         if not all(n in arrays for n in names):
@@ -325,8 +326,6 @@ class LoadedRun:
 
     def _archive_from_npz(self, path: Path) -> Any:
         """The passive archive of an RL, PBT or skill run from its `archive.npz` (no genotypes)."""
-        from qdrl.qd.repertoires import passive_archive
-
         with np.load(path) as f:
             arrays = {k: f[k] for k in f.files}
         if not {"fitnesses", "descriptors", "grid_shape", "low", "high"} <= set(arrays):
@@ -344,9 +343,8 @@ class LoadedRun:
                 f"{self.path} holds no repertoire yet: expected repertoire.npz (a finished run) or a "
                 "checkpoint in checkpoints/ (an interrupted run)"
             )
-        run, key = self.run, jax.random.PRNGKey(self.seed)
-        # QD runs compute their cells (CVT: k-means, as `init` does); nothing is evaluated.
-        template = run.state_template(key) if hasattr(run, "state_template") else jax.eval_shape(run.init, key)
+        # The state's shapes and dtypes; nothing is evaluated or compiled.
+        template = jax.eval_shape(self.run.init, jax.random.PRNGKey(self.seed))
         try:
             state, _ = checkpoint.restore(latest, template)
         except ValueError as e:
@@ -360,8 +358,6 @@ class LoadedRun:
     def table(self) -> pd.DataFrame:
         """One row per elite: `cell`, `fitness`, `descriptor_*` and `centroid_*` (cell order)."""
         import pandas as pd
-
-        from qdrl.qd.repertoires import to_table
 
         return pd.DataFrame(to_table(self.repertoire))
 
@@ -409,8 +405,8 @@ class LoadedRun:
         each step, as in `qdrl.rollout.unroll_recorded`) fills `states`; brax tasks
         keep the link poses by default (`brax_link_poses`), enough to render.
         """
-        run = self.require_qd("rollout")
-        task = run.qd_task
+        qd = self.require_qd("rollout")
+        task = qd.task
         if task.env is None or task.policy_scoring is None:
             raise RunError(
                 f"rollout: expected a run of a policy task (brax tasks, point_maze), got task {task.name!r}"
@@ -419,7 +415,7 @@ class LoadedRun:
         if record is None and hasattr(task.env, "brax_env"):
             record = brax_link_poses
         if record not in self._rollouts:
-            self._rollouts[record] = jax.jit(run.scoring(fixed_start=True, record=record))
+            self._rollouts[record] = jax.jit(qd.scoring(fixed_start=True, record=record))
         batch = jax.tree.map(lambda x: np.asarray(x)[None], genotype)
         ev = jax.device_get(self._rollouts[record](batch, jax.random.PRNGKey(0)))
         tr, mask = ev.extras["transitions"], np.asarray(ev.extras["mask"])[:, 0]
@@ -445,31 +441,12 @@ class LoadedRun:
         """
         if samples < 1:
             raise RunError(f"samples: expected a positive integer, got {samples}")
-        run = self.require_qd("reevaluate")
+        qd = self.require_qd("reevaluate")
         seed = self.seed if seed is None else seed
+        report = reevaluation_report(
+            self.repertoire, qd.scoring(fixed_start=False), qd.task.qd_offset, samples, seed,
+            {"algorithm": self.algorithm, "task": qd.task.name}, random_starts=qd.task.policy_scoring is not None,
+        )
         if write:
-            return write_reevaluation(run, self.repertoire, self.path, samples, seed)
-        return _reevaluation_report(run, self.repertoire, samples, seed)
-
-
-def _reevaluation_report(run: QDRun, repertoire: Any, samples: int, seed: int) -> dict[str, Any]:
-    import time
-
-    from qdrl.qd import reevaluate as re
-
-    t0 = time.perf_counter()
-    task = run.qd_task
-    result = re.reevaluate(repertoire, run.scoring(fixed_start=False), re.default_key(seed), samples, task.qd_offset)
-    report = {"algorithm": run.algorithm, "task": run.task, **re.report(result, samples, seed)}
-    report["qd_offset"] = task.qd_offset
-    report["start_states"] = "random" if task.policy_scoring is not None else "the task's own scoring"
-    report["wall_s"] = time.perf_counter() - t0
-    return report
-
-
-def write_reevaluation(run: QDRun, repertoire: Any, out_dir: Path, samples: int, seed: int) -> dict[str, Any]:
-    """Re-evaluates `repertoire` of `run` and writes the report to `out_dir/reevaluation.json`."""
-    report = _reevaluation_report(run, repertoire, samples, seed)
-    clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in report.items()}
-    (out_dir / "reevaluation.json").write_text(json.dumps(clean, indent=2) + "\n")
-    return clean
+            write_reevaluation(report, self.path)
+        return report

@@ -10,8 +10,9 @@ import jax
 import jax.numpy as jnp
 
 from qdrl import docgen
+from qdrl.algorithms.qd import RepertoireConfig
 from qdrl.off_policy import TrainConfig
-from qdrl.runners.qd import PGSection, RepertoireConfig
+from qdrl.qd.emitters.qd_rl import PGAMEConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 MARKER = re.compile(r"<!-- keys (\S+):(\S+) (\S+) -->")
@@ -28,10 +29,18 @@ def test_a_key_table_gives_each_key_its_default_what_it_accepts_and_its_comment(
     assert "| `train.learning_starts` | `10000` | an integer >= 0 |" in train
 
 
-def test_comments_come_from_the_class_that_declares_the_field() -> None:
-    comments = docgen.field_comments(PGSection)  # a subclass of the emitter's PGConfig
-    assert comments["proportion_mutation_ga"].startswith("Share of `emitter.batch_size` made by the GA")
-    assert comments["tau"] == "Polyak rate of the target networks."  # the comment block above, in PGConfig
+def test_nested_configs_give_their_keys_under_the_spec_names() -> None:
+    table = docgen.keys_table(PGAMEConfig, "pg").splitlines()
+    rows = {row.split(" | ")[0].strip("| `"): row for row in table[2:]}
+    # PGConfig's own keys, its TD3's under the [pg] names, then the GA's share; no [emitter] key.
+    assert list(rows)[:5] == [
+        "pg.num_critic_training_steps", "pg.num_pg_training_steps", "pg.policy_learning_rate",
+        "pg.training_batch_size", "pg.replay_buffer_size",
+    ]
+    assert "pg.critic_learning_rate" in rows and "pg.critic_hidden" in rows and "pg.ga" not in rows
+    assert rows["pg.critic_learning_rate"].split(" | ")[1] == "`0.0003`"
+    assert "Adam step size of the twin Q critics" in rows["pg.critic_learning_rate"]  # TD3Config's comment
+    assert rows["pg.proportion_mutation_ga"].endswith("Share of the batch made by the GA; the rest by Q-PG (QDax's PGA-ME: 0.5). |")
 
 
 def test_task_and_spec_tables() -> None:

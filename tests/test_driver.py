@@ -134,9 +134,8 @@ def test_resume_names_each_differing_key(tmp_path: Path, full: tuple[Path, Path,
         run_spec(spec, ["qd.num_iterations=12", "emitter.iso_sigma=0.02"], out, resume=True)
     assert str(info.value).startswith(
         f"--resume: the spec differs from {out / 'config.toml'}: "
-        "emitter.iso_sigma 0.01 -> 0.02, qd.num_iterations 8 -> 12; only qd.num_iterations or "
-        "train.total_env_steps or cma_es.num_generations (to extend the run) and [log] may change "
-        "on resume"
+        "emitter.iso_sigma 0.01 -> 0.02, qd.num_iterations 8 -> 12; only qd.num_iterations "
+        "(to extend the run) and [log] may change on resume"
     )
     with pytest.raises(ConfigError, match=r"--resume: expected a length of at least the 4 log points"):
         run_spec(spec, ["qd.num_iterations=4"], out, resume=True)
@@ -303,13 +302,11 @@ def test_ctrl_c_while_compiling_exits_at_once(tmp_path: Path) -> None:
 def test_an_unexpected_error_prints_one_line_and_logs_the_traceback(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from qdrl.runners.qd import QDRun
-
-    def broken_compile(self: QDRun, state: Any) -> float:
+    def broken_compile(*args: Any, **kwargs: Any) -> Any:
         raise RuntimeError("XLA ran out of memory\nsecond line of detail")
 
     spec, out = write_spec(tmp_path), tmp_path / "out"
-    monkeypatch.setattr(QDRun, "compile", broken_compile)
+    monkeypatch.setattr("qdrl.compiling.compile_timed", broken_compile)
     assert main(["run", str(spec), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     log = out / "error.log"
@@ -378,8 +375,15 @@ def test_compile_records_give_a_new_spec_the_last_cold_compile_of_its_algorithm_
     # Keys that do not change what is compiled do not change the spec's key.
     base = "[experiment]\nseed = 0\nname = 'a'\n[qd]\nnum_iterations = 10\nlog_every = 5\n[log]\nprogress = true\n"
     same = base.replace("seed = 0", "seed = 3").replace("= 10", "= 20").replace("true", "false")
-    assert compile_cache.spec_key(base) == compile_cache.spec_key(same)
+    assert compile_cache.spec_key(base, "qd.num_iterations") == compile_cache.spec_key(same, "qd.num_iterations")
+    assert compile_cache.spec_key(base, "qd.num_iterations") != compile_cache.spec_key(same)
     assert compile_cache.spec_key(base) != compile_cache.spec_key(base.replace("= 5", "= 2"))
+    # Every algorithm's length key is the one its recipe declares.
+    from qdrl.algorithms import ALGORITHMS
+
+    assert {r.length_key for r in ALGORITHMS.values()} == {
+        "qd.num_iterations", "train.total_env_steps", "cma_es.num_generations"
+    }
 
 
 def test_compile_cache_goes_to_the_user_cache_unless_jax_has_one(

@@ -191,9 +191,8 @@ def test_heatmap_axes_carry_the_descriptor_names(tmp_path: Path) -> None:
 
 
 def test_tasks_name_their_descriptors() -> None:
-    from qdrl.envs.brax import FEET
+    from qdrl.envs.brax import FEET, FEET_NAMES
     from qdrl.tasks import Task, make_task
-    from qdrl.tasks.brax_qd import FEET_NAMES
 
     assert make_task("arm", num_dofs=4).descriptor_names == ("end-effector x", "end-effector y")
     plain = Task("t", make_task("arm").scoring_fn, (0.0, 0.0), (1.0, 1.0), 4, 0.0, 1.0, 0.0)

@@ -6,11 +6,13 @@ import json
 import shutil
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
 from qdrl import checkpoint
 from qdrl.config import ConfigError, load_toml
+from qdrl.algorithms.skills import skill_task
 from qdrl.experiment import build_run, run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,8 +91,14 @@ def test_point_maze_specs_build(path: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("path", [p for p in SPECS if "point_maze" not in p.stem], ids=lambda p: p.stem)
 def test_brax_specs_build(path: Path) -> None:
-    run_, _, _ = build_run(load_toml(path))
-    assert run_.env.observation_size > run_.base_env.observation_size
+    spec = load_toml(path)
+    run_, _, _ = build_run(spec)
+    assert run_.task == spec["env"]["task"]
+    # The agent acts on the task's observation followed by a one-hot skill.
+    state = jax.eval_shape(run_.init, jax.random.PRNGKey(0))
+    k = run_.sections["skills"].num_skills
+    base = skill_task(spec["env"]["task"], 5, spec["env"].get("backend", "spring")).env.observation_size
+    assert state.train.env.obs.shape[-1] == base + k
 
 
 @pytest.mark.parametrize(

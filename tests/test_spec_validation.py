@@ -31,7 +31,7 @@ from typing import Annotated, Any
 
 import pytest
 
-from qdrl.config import ConfigError, OneOf, Range, describe, load_toml
+from qdrl.config import ConfigError, OneOf, Range, as_table, build, describe, load_toml, table_keys
 from qdrl.experiment import CheckedSpec, ExperimentConfig, LogConfig, build_run, check_spec
 
 SPECS = sorted((Path(__file__).resolve().parents[1] / "agents").glob("*.toml"))
@@ -102,10 +102,9 @@ def accepts(tp: Any, value: Any) -> bool:
 
 def _table_class(section: str) -> type[Any]:
     """The config class of a section that stays a table of given keys until the run is built."""
-    from qdrl.runners.qd import DCRLSection
-    from qdrl.runners.rl import ArchiveConfig
+    from qdrl.algorithms.rl import ArchiveConfig
 
-    return {"archive": ArchiveConfig, "dcrl": DCRLSection}[section]
+    return {"archive": ArchiveConfig}[section]
 
 
 def declared_keys(checked: CheckedSpec) -> Iterator[tuple[str, str, Any, Any]]:
@@ -118,16 +117,15 @@ def declared_keys(checked: CheckedSpec) -> Iterator[tuple[str, str, Any, Any]]:
     for section, obj in sections.items():
         if section == "task":
             yield section, "name", TaskName, obj["name"]
-            builder = TASKS[obj["name"]]
+            builder = TASKS[obj["name"]].build
             hints = _hints(builder)
             for key in inspect.signature(builder).parameters:
                 yield section, key, hints[key], obj[key]
             continue
         cls = type(obj) if dataclasses.is_dataclass(obj) else _table_class(section)
-        hints = _hints(cls)
-        for f in dataclasses.fields(cls):
-            value = getattr(obj, f.name) if dataclasses.is_dataclass(obj) else obj.get(f.name, f.default)
-            yield section, f.name, hints[f.name], value
+        values = as_table(obj) if dataclasses.is_dataclass(obj) else as_table(build(cls, obj, section))
+        for key, (_, tp) in table_keys(cls).items():
+            yield section, key, tp, values[key]
 
 
 def substitutes(original: Any) -> list[tuple[str, Any]]:
@@ -297,7 +295,7 @@ def test_seed_zero_is_valid_and_seeds_past_32_bits_are_not() -> None:
 
 def test_a_bad_pg_value_of_pga_me_is_reported_before_the_task_is_built(monkeypatch: pytest.MonkeyPatch) -> None:
     """PGA-ME used to build its brax task (about 8 s) before reading [pg]; now [pg] comes first."""
-    import qdrl.runners.qd as qd_runner
+    import qdrl.algorithms.qd as qd_runner
 
     spec = load_toml(Path(SPECS[0]).parent / "pga_me_halfcheetah_uni_cpu.toml")
     check_spec(spec)  # imports done

@@ -17,8 +17,9 @@ import pytest
 import qdrl
 from qdrl.cli import main
 from qdrl.config import ConfigError
-from qdrl.experiment import parse_seeds, run_seeds, run_spec
+from qdrl.experiment import run_spec
 from qdrl.report import report
+from qdrl.sweeps import parse_seeds, run_seeds
 
 SPEC = """# A tiny MAP-Elites on the arm, for the sweep tests.
 [experiment]

@@ -17,8 +17,11 @@ def env_names() -> list[str]:
     return [*PURE_JAX_ENVS, *JUMANJI_ENVS, *brax_env_names()]
 
 
-def make(name: str, backend: str = "spring", episode_length: int = 1000, **kwargs: Any) -> Env:
-    """The environment called `name` (brax ones on `backend`), truncated at `episode_length`."""
+def make(
+    name: str, backend: str = "spring", episode_length: int = 1000, state_descriptor: str = "xy", **kwargs: Any
+) -> Env:
+    """The environment called `name`, truncated at `episode_length`; brax ones on `backend`,
+    recording `state_descriptor` ("xy", "feet_contact"; the others have their own)."""
     if name == "point":
         from qdrl.envs.point import PointEnv
 
@@ -33,7 +36,7 @@ def make(name: str, backend: str = "spring", episode_length: int = 1000, **kwarg
         return snake_env(episode_length=episode_length, **kwargs)
     from qdrl.envs.brax import BraxEnv
 
-    return BraxEnv(name, backend, episode_length, **kwargs)
+    return BraxEnv(name, backend, episode_length, state_descriptor=state_descriptor, **kwargs)
 
 
 __all__ = ["Env", "EnvState", "auto_reset", "env_names", "make", "reset_batch", "step_batch"]

@@ -120,6 +120,16 @@ class Env(abc.ABC):
     def descriptor_size(self) -> int:
         return int(self._shapes().desc.shape[-1])
 
+    @property
+    def descriptor_names(self) -> tuple[str, ...]:
+        """Names of the state descriptor's dimensions, for plots: "x", "y" for a 2-D one by
+        default; environments whose descriptor is something else name it."""
+        names = getattr(self, "_descriptor_names", None)
+        if names is not None:
+            return tuple(names)
+        n = self.descriptor_size
+        return ("x", "y") if n == 2 else tuple(f"descriptor {i}" for i in range(n))
+
 
 def reset_batch(env: Env, key: PRNGKey, num_envs: int) -> EnvState:
     """`num_envs` independent fresh episodes, batched on the leading axis."""

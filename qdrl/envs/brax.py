@@ -60,6 +60,18 @@ FORWARD_REWARD_KEYS = {
 }
 
 
+# Names of the feet-contact descriptor's dimensions, in the order of `FEET` (the ant's
+# lower legs 2, 4, 6, 8 belong to its front-left, front-right, back-left and back-right
+# legs in brax's ant.xml).
+FEET_NAMES: dict[str, tuple[str, ...]] = {
+    "ant": tuple(f"{leg} foot contact" for leg in ("front-left", "front-right", "back-left", "back-right")),
+    "halfcheetah": ("back foot contact", "front foot contact"),
+    "walker2d": ("right foot contact", "left foot contact"),
+    "hopper": ("foot contact",),
+    "humanoid": ("right foot contact", "left foot contact"),
+}
+
+
 def torso_xy(pipeline_state: Any) -> Array:
     """x-y position of the first body (the torso in every brax locomotion robot)."""
     return pipeline_state.x.pos[0, :2]
@@ -236,6 +248,8 @@ class BraxEnv(Env):
         self.episode_length = episode_length
         self.brax_env = make_brax_env(name, backend, **env_kwargs)
         self.action_size = int(self.brax_env.action_size)
+        if state_descriptor == "feet_contact":
+            self._descriptor_names = FEET_NAMES.get(robot_of(name))
         if isinstance(state_descriptor, str):
             state_descriptor = STATE_DESCRIPTORS[state_descriptor](name, self.brax_env)
         self._descriptor = state_descriptor

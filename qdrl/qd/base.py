@@ -12,7 +12,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
@@ -98,3 +98,17 @@ class Emitter(Protocol):
     ) -> Any:
         """The new emitter state after its offspring were evaluated and offered to the repertoire."""
         ...
+
+
+@runtime_checkable
+class ReportsMetrics(Protocol):
+    """An emitter that reports counters of its state on each log row (a critic's steps, restarts)."""
+
+    def log_metrics(self, state: Any) -> dict[str, Array]:
+        """Named 0-d values read from the emitter's state."""
+        ...
+
+
+def emitter_metrics(emitter: Any, state: Any) -> dict[str, Array]:
+    """`emitter.log_metrics(state)` for an emitter that reports metrics (`ReportsMetrics`), else {}."""
+    return dict(emitter.log_metrics(state)) if isinstance(emitter, ReportsMetrics) else {}

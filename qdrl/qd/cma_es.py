@@ -52,14 +52,29 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal, NamedTuple
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
 
+from qdrl.config import NonNegativeInt, PositiveFloat, PositiveInt, check_fields
 from qdrl.types import Array, PRNGKey
 
-__all__ = ["CMAES", "CMAESState", "default_population_size", "recombination_weights"]
+if TYPE_CHECKING:
+    from qdrl.tasks.base import Task
+
+__all__ = [
+    "CMAES",
+    "CMAESRunState",
+    "CMAESSearch",
+    "CMAESSearchConfig",
+    "CMAESState",
+    "cma_es_search",
+    "default_population_size",
+    "recombination_weights",
+]
 
 # Stop tolerances of pyribs / pycma.
 MAX_CONDITION = 1e14
@@ -341,3 +356,110 @@ class CMAES:
             gap = jnp.abs(gap) if gap.ndim == 0 else jnp.linalg.norm(gap)
             stop = stop | ((v.shape[0] >= 2) & (gap < FLAT_FITNESS))
         return stop
+
+
+# -- CMA-ES as an optimiser of a task's fitness (the `cma_es` baseline) --
+
+
+@dataclasses.dataclass(frozen=True)
+class CMAESSearchConfig:
+    """One CMA-ES maximising a task's fitness, restarted when it stops (the `[cma_es]` keys)."""
+
+    population_size: NonNegativeInt = 0  # lambda; 0: 4 + floor(3 ln n)
+    sigma0: PositiveFloat = 0.3  # initial step size (in genotype units) of every (re)start
+    separable: bool = False  # sep-CMA-ES: diagonal covariance, for thousands of parameters
+    # Generations between eigendecompositions, or 0.5 lambda / (n (c_1 + c_mu)) counted in
+    # "generations" (as QDax counts it) or in "evaluations" (as pyribs' code does).
+    eigen_gap: PositiveInt | EigenGapRule = "generations"
+    update_rule: Literal["pyribs", "tutorial"] = "pyribs"
+    restarts: bool = True  # start again from a random genotype when a stop condition fires
+
+    def check(self, section: str = "cma_es") -> None:
+        check_fields(self, section)
+        if self.population_size == 1:
+            raise ValueError(f"{section}.population_size: expected 0 (the default) or an integer >= 2, got 1")
+
+
+class CMAESRunState(NamedTuple):
+    """The search, its key and what a run reports; checkpointing saves exactly this."""
+
+    es: CMAESState
+    key: Array
+    generation: Array  # int32 generations done
+    evaluations: Array  # int32
+    env_steps: Array  # int32
+    best_fitness: Array  # () best fitness ever evaluated
+    best_genotype: Array  # (n,) flat genotype of best_fitness
+    restarts: Array  # int32
+
+
+class CMAESSearch(NamedTuple):
+    """CMA-ES on a task (`cma_es_search`): pure, jittable functions and the CMA-ES they step.
+
+    init(key) -> state; step(state) -> (state, {"generation_best_fitness", "generation_mean_fitness"})
+    """
+
+    es: CMAES
+    init: Callable[[PRNGKey], CMAESRunState]
+    step: Callable[[CMAESRunState], tuple[CMAESRunState, dict[str, Array]]]
+
+
+def cma_es_search(task: Task, config: CMAESSearchConfig = CMAESSearchConfig()) -> CMAESSearch:
+    """CMA-ES maximising `task`'s fitness (descriptors are ignored), restarting when it stops.
+
+    Each generation samples lambda genotypes, clips them to the task's genotype bounds
+    when finite (as CMA-ME's emitter does), scores them, ranks them by fitness (NaN
+    last) and updates the search; a stop condition (with `config.restarts`) starts it
+    again from a new random genotype with sigma0.
+    """
+    flat, unravel = ravel_pytree(task.example_genotype())
+    c = config
+    es = CMAES(int(flat.shape[0]), c.population_size or None, c.sigma0, c.separable, c.eigen_gap, c.update_rule)
+    clip = bool(math.isfinite(task.genotype_low) or math.isfinite(task.genotype_high))
+
+    def start(key: Array) -> Array:
+        """A random flat genotype of the task (its initial distribution)."""
+        return ravel_pytree(jax.tree.map(lambda x: x[0], task.init_genotypes(key, 1)))[0]
+
+    def init(key: PRNGKey) -> CMAESRunState:
+        start_key, key = jax.random.split(key)
+        return CMAESRunState(
+            es=es.init(start(start_key)),
+            key=key,
+            generation=jnp.zeros((), jnp.int32),
+            evaluations=jnp.zeros((), jnp.int32),
+            env_steps=jnp.zeros((), jnp.int32),
+            best_fitness=jnp.asarray(-jnp.inf, jnp.float32),
+            best_genotype=jnp.zeros((es.num_dims,), jnp.float32),
+            restarts=jnp.zeros((), jnp.int32),
+        )
+
+    def step(state: CMAESRunState) -> tuple[CMAESRunState, dict[str, Array]]:
+        """One generation: sample, score, rank by fitness (NaN last), update, maybe restart."""
+        key, sample_key, eval_key, restart_key = jax.random.split(state.key, 4)
+        x = es.sample(state.es, sample_key)
+        if clip:
+            x = jnp.clip(x, task.genotype_low, task.genotype_high)
+        evaluation = task.scoring_fn(jax.vmap(unravel)(x), eval_key)
+        fitness = jnp.where(jnp.isnan(evaluation.fitnesses), -jnp.inf, evaluation.fitnesses)
+        order = jnp.argsort(-fitness, stable=True)
+        new_es = es.update(state.es, x[order], es.lam // 2)
+        restart = es.stop(new_es, fitness[order]) & c.restarts
+        new_es = jax.lax.cond(restart, lambda: es.init(start(restart_key)), lambda: new_es)
+        best = fitness[order[0]]
+        improved = best > state.best_fitness
+        new = CMAESRunState(
+            es=new_es,
+            key=key,
+            generation=state.generation + 1,
+            evaluations=state.evaluations + es.lam,
+            env_steps=state.env_steps + jnp.asarray(evaluation.env_steps, jnp.int32),
+            best_fitness=jnp.where(improved, best, state.best_fitness),
+            best_genotype=jnp.where(improved, x[order[0]], state.best_genotype),
+            restarts=state.restarts + restart.astype(jnp.int32),
+        )
+        finite = jnp.isfinite(fitness)
+        mean = jnp.sum(jnp.where(finite, fitness, 0.0)) / jnp.maximum(jnp.sum(finite), 1)
+        return new, {"generation_best_fitness": best, "generation_mean_fitness": mean}
+
+    return CMAESSearch(es, init, step)

@@ -183,6 +183,12 @@ def shard_scoring(scoring_fn: ScoringFn, placement: Placement) -> ScoringFn:
     return scoring
 
 
+def qd_state_axes(emitter: Emitter) -> QDState:
+    """Which axis of each part of a QD state is split over the devices (None: replicated):
+    all replicated, but for an emitter that declares `state_axes` (ME-PBT's members)."""
+    return QDState(None, getattr(emitter, "state_axes", None), None, None, None, None)  # type: ignore[arg-type]
+
+
 class MapElites:
     """MAP-Elites over any repertoire, emitter and scoring function."""
 
@@ -257,10 +263,8 @@ class MapElites:
 
     @property
     def state_axes(self) -> QDState:
-        """Which axis of each part of the state is split over the devices (None: replicated):
-        all replicated, but for an emitter that declares `state_axes` (ME-PBT's members)."""
-        emitter_axes = getattr(self.emitter, "state_axes", None)
-        return QDState(None, emitter_axes, None, None, None, None)  # type: ignore[arg-type]
+        """Which axis of each part of the state is split over the devices (`qd_state_axes`)."""
+        return qd_state_axes(self.emitter)
 
     def _replicated(self, state: QDState) -> QDState:
         return self.placement.place(state, self.state_axes)

@@ -19,6 +19,10 @@ corrected repertoire is the stored one and its metrics are equal.
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
+import time
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -36,8 +40,10 @@ __all__ = [
     "default_key",
     "emptied",
     "reevaluate",
+    "reevaluation_report",
     "report",
     "sample_scores",
+    "write_reevaluation",
 ]
 
 # Mixed into the run's seed so that re-evaluations draw keys no run draws.
@@ -182,3 +188,28 @@ def report(result: Reevaluation, num_samples: int, seed: int) -> dict[str, Any]:
         "stored": pick(result.stored_metrics),
         "corrected": pick(result.corrected_metrics),
     }
+
+
+def reevaluation_report(
+    repertoire: CellRepertoire,
+    scoring_fn: ScoringFn,
+    qd_offset: float,
+    samples: int,
+    seed: int,
+    labels: dict[str, Any],
+    random_starts: bool,
+) -> dict[str, Any]:
+    """`report` of `reevaluate` with the run's `labels` (algorithm, task) and wall time, as
+    `qdrl reevaluate` and `qd.reevaluate_samples` write it (non-finite floats as None)."""
+    t0 = time.perf_counter()
+    result = reevaluate(repertoire, scoring_fn, default_key(seed), samples, qd_offset)
+    out = {**labels, **report(result, samples, seed)}
+    out["qd_offset"] = qd_offset
+    out["start_states"] = "random" if random_starts else "the task's own scoring"
+    out["wall_s"] = time.perf_counter() - t0
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
+
+
+def write_reevaluation(report_: dict[str, Any], out_dir: Path) -> None:
+    """Writes a `reevaluation_report` to `out_dir/reevaluation.json`."""
+    (out_dir / "reevaluation.json").write_text(json.dumps(report_, indent=2) + "\n")

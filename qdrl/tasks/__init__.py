@@ -1,7 +1,8 @@
 """QD tasks: scoring functions with their bounds, and a registry of them by name.
 
-`TASKS[name](**params)` builds a `Task`; `make_task(name, **params)` does the same
-with a helpful error for unknown names (experiment specs use it).
+`TASKS[name](**params)` builds a `Task` (`TASKS[name]` is a `TaskEntry`: its builder
+and what a spec can know of the task before building it); `make_task(name, **params)`
+does the same with a helpful error for unknown names.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from qdrl.tasks.arm import arm, noisy_arm
-from qdrl.tasks.base import Task
+from qdrl.tasks.base import Task, TaskEntry
 from qdrl.tasks.brax_qd import BRAX_TASKS
 from qdrl.tasks.deceptive import archimedean_spiral, deceptive_evolvability, ssf
 from qdrl.tasks.functions import rastrigin, rastrigin_proj, sphere, sphere_proj
@@ -19,7 +20,7 @@ from qdrl.tasks.lp import lp_plateau, lp_rastrigin, lp_sphere
 from qdrl.tasks.mo import MO_TASKS
 from qdrl.tasks.point_maze import point_maze
 
-TASKS: dict[str, Callable[..., Task]] = {
+_FUNCTIONS: dict[str, Callable[..., Task]] = {
     "sphere": sphere,
     "rastrigin": rastrigin,
     "sphere_proj": sphere_proj,
@@ -32,9 +33,11 @@ TASKS: dict[str, Callable[..., Task]] = {
     "archimedean_spiral": archimedean_spiral,
     "deceptive_evolvability": deceptive_evolvability,
     "ssf": ssf,
-    "point_maze": point_maze,
-    "snake": snake,
-    **BRAX_TASKS,
+}
+_POLICIES: dict[str, Callable[..., Task]] = {"point_maze": point_maze, "snake": snake, **BRAX_TASKS}
+TASKS: dict[str, TaskEntry] = {
+    **{name: TaskEntry(build) for name, build in _FUNCTIONS.items()},
+    **{name: TaskEntry(build, policy=True) for name, build in _POLICIES.items()},
     **MO_TASKS,
 }
 
@@ -51,6 +54,7 @@ def make_task(name: str, **params: Any) -> Task:
 __all__ = [
     "TASKS",
     "Task",
+    "TaskEntry",
     "archimedean_spiral",
     "arm",
     "deceptive_evolvability",

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +12,14 @@ import jax.numpy as jnp
 from qdrl.qd.base import Evaluation, ScoringFn
 from qdrl.qd.dqd import DESCRIPTOR_GRADIENTS, FITNESS_GRADIENT
 from qdrl.types import Array, Descriptor, Fitness, PRNGKey
+
+
+class PolicyNetwork(NamedTuple):
+    """The network whose parameters are a policy task's genotypes, and its input and output sizes."""
+
+    network: Any  # haiku `Transformed`: apply(params, obs) -> action in [-1, 1]
+    obs_size: int
+    action_size: int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +69,12 @@ class Task:
     num_objectives: int = 1
     reference_point: tuple[float, ...] | None = None
     descriptor_names: tuple[str, ...] = ()
+    # Policy tasks (`qdrl.tasks.policy`): the genotypes' network; None when genotypes are not policies.
+    policy: PolicyNetwork | None = None
+    # Tasks whose Pareto front is known (ZDT, DTLZ2): () -> (k, M) points of it in fitness
+    # space, for plots; and its hypervolume from `reference_point` (None where not known).
+    true_front: Callable[[], Any] | None = None
+    true_hypervolume: float | None = None
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
@@ -90,6 +104,11 @@ class Task:
             )
 
     @property
+    def is_policy_task(self) -> bool:
+        """Whether genotypes are policies acting in `env` (so the task hands back transitions)."""
+        return self.policy is not None
+
+    @property
     def descriptor_size(self) -> int:
         """Number of descriptor dimensions D."""
         return len(self.descriptor_low)
@@ -110,6 +129,29 @@ class Task:
             minval=self.genotype_low,
             maxval=self.genotype_high,
         )
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskEntry:
+    """One task of the registry (`qdrl.tasks.TASKS`): its builder, and what a spec can know of
+    the task before building it (building a policy task builds its environment).
+
+    `entry(**params)` builds the task; `entry.build` is the builder itself (its signature
+    and annotations declare the `[task]` keys).
+    """
+
+    build: Callable[..., Task]
+    # Genotypes are policies acting in an environment: unbounded parameter trees.
+    policy: bool = False
+    # The number of objectives, or how a resolved `[task]` table sets it (DTLZ2's num_objectives).
+    objectives: int | Callable[[Mapping[str, Any]], int] = 1
+
+    def __call__(self, **params: Any) -> Task:
+        return self.build(**params)
+
+    def num_objectives(self, table: Mapping[str, Any]) -> int:
+        """The number of objectives of the task of a resolved `[task]` table, without building it."""
+        return self.objectives if isinstance(self.objectives, int) else int(self.objectives(table))
 
 
 def batched_scoring_fn(

@@ -56,7 +56,7 @@ import math
 from collections.abc import Sequence
 
 from qdrl.config import PositiveInt
-from qdrl.envs.brax import Backend, BraxEnv
+from qdrl.envs.brax import FEET_NAMES, Backend, BraxEnv
 from qdrl.tasks.base import Task
 from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, EpisodeDescriptor, policy_task
 
@@ -88,16 +88,6 @@ MAZE_MAX_DISTANCE = max(
 DEFAULT_BACKEND: Backend = "spring"
 
 
-# Plot labels of the feet-contact descriptor, in the order of `qdrl.envs.brax.FEET`
-# (the ant's lower legs 2, 4, 6, 8 belong to its front-left, front-right, back-left and
-# back-right legs in brax's ant.xml).
-FEET_NAMES: dict[str, tuple[str, ...]] = {
-    "ant": tuple(f"{leg} foot contact" for leg in ("front-left", "front-right", "back-left", "back-right")),
-    "halfcheetah": ("back foot contact", "front foot contact"),
-    "walker2d": ("right foot contact", "left foot contact"),
-    "hopper": ("foot contact",),
-    "humanoid": ("right foot contact", "left foot contact"),
-}
 FINAL_XY_NAMES = ("final x", "final y")
 
 

@@ -22,14 +22,14 @@
   reward, minus ctrl_cost_weight |a|^2 per step, so higher is less energy), with the
   feet-contact descriptors of the `*_uni` tasks, on the same policies and rollout.
 
-`num_objectives_of(table)` tells a spec's number of objectives without building the
-task, so specs are checked before anything is built.
+Their registry entries (`MO_TASKS`) tell a spec's number of objectives without building
+the task, so specs are checked before anything is built.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Annotated, Any
 
 import jax.numpy as jnp
@@ -37,20 +37,18 @@ import numpy as np
 
 from qdrl.config import PositiveInt, Range
 from qdrl.envs.brax import FORWARD_REWARD_KEYS, Backend, BraxEnv
-from qdrl.tasks.base import Task, batched_scoring_fn
+from qdrl.tasks.base import Task, TaskEntry, batched_scoring_fn
 from qdrl.tasks.brax_qd import DEFAULT_BACKEND, REWARD_OFFSETS
 from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, policy_task
 from qdrl.types import Array
 
 __all__ = [
-    "BRAX_MULTI_TASKS",
     "MO_TASKS",
     "TRUE_HYPERVOLUME",
     "ant_multi",
     "dtlz2",
     "halfcheetah_multi",
     "mo_rastrigin",
-    "num_objectives_of",
     "true_front",
     "walker2d_multi",
     "zdt1",
@@ -127,8 +125,12 @@ def _zdt_h(kind: str, f1: Array, g: Array) -> Array:
 
 
 def _unit_task(
-    name: str, evaluate: Callable[[Array], tuple[Array, Array]], num_dims: int, reference: tuple[float, ...]
+    name: str, evaluate: Callable[[Array], tuple[Array, Array]], num_dims: int, reference: tuple[float, ...],
+    default_reference: tuple[float, ...],
 ) -> Task:
+    m = len(reference)
+    known = name in ("zdt1", "zdt2", "zdt3") or (name == "dtlz2" and m == 3)
+    points = 900 if name == "dtlz2" else 400
     return Task(
         name=name,
         scoring_fn=batched_scoring_fn(evaluate, num_dims),
@@ -140,6 +142,9 @@ def _unit_task(
         qd_offset=0.0,
         num_objectives=len(reference),
         reference_point=reference,
+        true_front=(lambda: true_front(name, points)) if known else None,
+        # The true front's hypervolume is known from the default reference point only.
+        true_hypervolume=TRUE_HYPERVOLUME.get(name) if known and reference == default_reference else None,
     )
 
 
@@ -151,7 +156,7 @@ def _zdt(kind: str, num_dims: int, reference_point: Sequence[float] | None) -> T
         f2 = g * _zdt_h(kind, f1, g)
         return -jnp.stack([f1, f2]), x[:2]
 
-    return _unit_task(kind, evaluate, num_dims, _reference(kind, reference_point, (-1.0, -1.0)))
+    return _unit_task(kind, evaluate, num_dims, _reference(kind, reference_point, (-1.0, -1.0)), (-1.0, -1.0))
 
 
 def zdt1(num_dims: NumDims = 30, reference_point: ReferencePoint = None) -> Task:
@@ -200,7 +205,8 @@ def dtlz2(
             f.append((1.0 + g) * term)
         return -jnp.stack(f), x[:2]
 
-    return _unit_task("dtlz2", evaluate, num_dims, _reference("dtlz2", reference_point, (-1.0,) * m))
+    default = (-1.0,) * m
+    return _unit_task("dtlz2", evaluate, num_dims, _reference("dtlz2", reference_point, default), default)
 
 
 TRUE_HYPERVOLUME: dict[str, float] = {
@@ -320,28 +326,13 @@ def ant_multi(
     )
 
 
-MO_TASKS: dict[str, Callable[..., Task]] = {
-    "mo_rastrigin": mo_rastrigin,
-    "zdt1": zdt1,
-    "zdt2": zdt2,
-    "zdt3": zdt3,
-    "dtlz2": dtlz2,
-    "halfcheetah_multi": halfcheetah_multi,
-    "walker2d_multi": walker2d_multi,
-    "ant_multi": ant_multi,
+MO_TASKS: dict[str, TaskEntry] = {
+    "mo_rastrigin": TaskEntry(mo_rastrigin, objectives=2),
+    "zdt1": TaskEntry(zdt1, objectives=2),
+    "zdt2": TaskEntry(zdt2, objectives=2),
+    "zdt3": TaskEntry(zdt3, objectives=2),
+    "dtlz2": TaskEntry(dtlz2, objectives=lambda table: int(table.get("num_objectives", 3))),
+    "halfcheetah_multi": TaskEntry(halfcheetah_multi, policy=True, objectives=2),
+    "walker2d_multi": TaskEntry(walker2d_multi, policy=True, objectives=2),
+    "ant_multi": TaskEntry(ant_multi, policy=True, objectives=2),
 }
-
-
-# The policy tasks among them (brax rollouts).
-BRAX_MULTI_TASKS = ("halfcheetah_multi", "walker2d_multi", "ant_multi")
-
-
-def num_objectives_of(table: Mapping[str, Any]) -> int:
-    """The number of objectives of a resolved `[task]` table, without building the task (1 for
-    single-objective tasks)."""
-    name = table.get("name")
-    if name not in MO_TASKS:
-        return 1
-    if name == "dtlz2":
-        return int(table.get("num_objectives", 3))
-    return 2

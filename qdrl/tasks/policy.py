@@ -38,7 +38,7 @@ from qdrl import nets
 from qdrl.envs.base import Env
 from qdrl.qd.base import Evaluation, ScoringFn
 from qdrl.rollout import Episodes, RecordFn, fixed_start_state, run_episodes
-from qdrl.tasks.base import Task
+from qdrl.tasks.base import PolicyNetwork, Task
 from qdrl.types import Genotype, Params, PRNGKey
 
 EpisodeDescriptor = Literal["final", "mean"]
@@ -287,4 +287,5 @@ def policy_task(
         num_objectives=1 if objectives is None else len(reference_point or ()),
         reference_point=None if reference_point is None else tuple(float(v) for v in reference_point),
         descriptor_names=tuple(descriptor_names),
+        policy=PolicyNetwork(network, obs_size, env.action_size),
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from qdrl import buffers, nets
-from qdrl.config import ConfigError
+from qdrl.config import ConfigError, build
 from qdrl.experiment import run_spec
 from qdrl.qd.base import AddResult, Evaluation
 from qdrl.qd.emitters import GAEmitter, MultiEmitter
@@ -27,7 +28,7 @@ from qdrl.qd.emitters.dcrl import (
     relabel_reward,
     similarity,
 )
-from qdrl.qd.emitters.pg import insert_valid
+from qdrl.qd.emitters.pg import PG_TD3, insert_valid
 from qdrl.types import Transition
 
 OBS, ACT, D, T = 3, 2, 2, 4
@@ -37,7 +38,7 @@ CONFIG = DCRLConfig(
     num_pg_training_steps=5,
     training_batch_size=8,
     replay_buffer_size=40,
-    critic_hidden=(8,),
+    td3=dataclasses.replace(PG_TD3, hidden=(8,)),
     lengthscale=0.5,
     reward_offset=1.0,
 )
@@ -284,7 +285,7 @@ def test_dcrl_me_emitter_puts_dcrl_first_then_the_ga() -> None:
 )
 def test_bad_dcrl_config_names_the_field(field: str, value: object, match: str) -> None:
     with pytest.raises(ValueError, match=re.escape(match)):
-        DCRLConfig(**{field: value}).check()  # type: ignore[arg-type]
+        build(DCRLConfig, {field: value}, "dcrl")
 
 
 SPEC = """

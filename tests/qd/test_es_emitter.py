@@ -11,7 +11,7 @@ import pytest
 
 from qdrl.experiment import run_spec
 from qdrl.qd.base import AddResult, Evaluation
-from qdrl.qd.emitters.es import ESEmitter, centred_ranks, es_gradient
+from qdrl.qd.emitters.es import ESConfig, ESEmitter, centred_ranks, es_gradient
 
 
 class FixedRepertoire:
@@ -50,8 +50,9 @@ def test_es_gradient_matches_a_hand_computed_example() -> None:
 
 def test_es_emitter_climbs_a_quadratic_and_emits_its_centre_last() -> None:
     target = jnp.array([1.0, -1.0, 0.5])
-    em = ESEmitter(16, jnp.zeros(3), sigma=0.1, learning_rate=0.05, l2_coefficient=0.0,
-                   num_optimizer_steps=1000, objective="fitness", descriptor_size=2, archive_size=64)
+    config = ESConfig(population_size=16, sigma=0.1, learning_rate=0.05, l2_coefficient=0.0,
+                      num_optimizer_steps=1000, objective="fitness", archive_size=64)
+    em = ESEmitter(config, jnp.zeros(3), descriptor_size=2)
     repertoire = FixedRepertoire(jnp.zeros((4, 3)))
     key = jax.random.PRNGKey(0)
     state = em.init(key, repertoire, evaluate(jnp.zeros((4, 3)), target), jnp.zeros((4, 3)))  # type: ignore[arg-type]
@@ -71,8 +72,8 @@ def test_es_emitter_climbs_a_quadratic_and_emits_its_centre_last() -> None:
 
 
 def test_es_restarts_from_an_elite_and_explore_exploit_alternates() -> None:
-    em = ESEmitter(4, jnp.zeros(3), num_optimizer_steps=2, objective="explore_exploit",
-                   descriptor_size=2, archive_size=64)
+    config = ESConfig(population_size=4, num_optimizer_steps=2, objective="explore_exploit", archive_size=64)
+    em = ESEmitter(config, jnp.zeros(3), descriptor_size=2)
     elites = jnp.full((4, 3), 7.0)
     repertoire = FixedRepertoire(elites)
     key = jax.random.PRNGKey(1)
@@ -90,7 +91,8 @@ def test_es_restarts_from_an_elite_and_explore_exploit_alternates() -> None:
 
 def test_restart_draws_the_fittest_the_recent_or_the_most_novel_elites() -> None:
     """ME-ES's biased restart: top-2 fitness (whole repertoire or recent cells), top-5 novelty."""
-    em = ESEmitter(4, jnp.zeros(3), descriptor_size=2, archive_size=64, novelty_neighbours=1)
+    config = ESConfig(population_size=4, objective="fitness", archive_size=64, novelty_neighbours=1)
+    em = ESEmitter(config, jnp.zeros(3), descriptor_size=2)
     # 8 cells; cell 7 empty. Fitness ranks: cells 3 and 5 best; descriptors along a line.
     genotypes = jnp.stack([jnp.array([float(i), 0.0, 0.0]) for i in range(8)])
     fitnesses = jnp.array([0.0, 1.0, 2.0, 9.0, 3.0, 8.0, 4.0, -jnp.inf])
@@ -123,7 +125,7 @@ def test_recent_cells_keep_the_last_improved_ones() -> None:
 
 def test_es_emitter_rejects_an_odd_population() -> None:
     with pytest.raises(ValueError, match="population_size"):
-        ESEmitter(5, jnp.zeros(3))
+        ESEmitter(ESConfig(population_size=5), jnp.zeros(3))
 
 
 SPEC = """

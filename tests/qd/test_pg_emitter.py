@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 from typing import Any
@@ -12,11 +13,12 @@ import numpy as np
 import pytest
 
 from qdrl import buffers, nets
-from qdrl.config import ConfigError
+from qdrl.config import ConfigError, build
 from qdrl.experiment import run_spec
 from qdrl.qd.base import AddResult, Evaluation
 from qdrl.qd.emitters import GAEmitter, MultiEmitter
 from qdrl.qd.emitters.pg import (
+    PG_TD3,
     PGConfig,
     PGEmitter,
     PGEmitterState,
@@ -32,7 +34,7 @@ CONFIG = PGConfig(
     num_pg_training_steps=5,
     training_batch_size=8,
     replay_buffer_size=40,
-    critic_hidden=(8,),
+    td3=dataclasses.replace(PG_TD3, hidden=(8,)),
 )
 
 
@@ -227,14 +229,14 @@ def test_pga_me_emitter_splits_the_batch_between_ga_and_qpg() -> None:
     [
         ("critic_learning_rate", -1.0, "pg.critic_learning_rate"),
         ("policy_learning_rate", 0.0, "pg.policy_learning_rate"),
-        ("critic_hidden", (0,), "pg.critic_hidden"),
+        ("critic_hidden", [0], "pg.critic_hidden"),
         ("num_pg_training_steps", -1, "pg.num_pg_training_steps"),
         ("policy_delay", 0, "pg.policy_delay"),
     ],
 )
 def test_bad_pg_config_names_the_key(field: str, value: object, match: str) -> None:
     with pytest.raises(ValueError, match=re.escape(match)):
-        PGConfig(**{field: value}).check()  # type: ignore[arg-type]
+        build(PGConfig, {field: value}, "pg")
 
 
 SPEC = """

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -12,13 +13,14 @@ from qdrl import nets
 from qdrl.experiment import run_spec
 from qdrl.qd.base import Evaluation
 from qdrl.qd.emitters.novelty import (
+    NoveltyConfig,
     NoveltyReward,
     add_to_archive,
     init_archive,
     novelty,
     qdpg_emitter,
 )
-from qdrl.qd.emitters.pg import PGConfig, PGEmitter
+from qdrl.qd.emitters.pg import PG_TD3, PGConfig, PGEmitter
 from qdrl.types import Transition
 
 
@@ -44,7 +46,7 @@ def test_novelty_is_the_mean_distance_to_the_k_nearest() -> None:
 
 
 def test_novelty_reward_relabels_with_the_next_descriptor_novelty() -> None:
-    hook = NoveltyReward(descriptor_size=2, acceptance_threshold=0.1, max_size=8, num_neighbours=1, scale=2.0)
+    hook = NoveltyReward(2, NoveltyConfig(acceptance_threshold=0.1, archive_max_size=8, num_neighbours=1, novelty_scale=2.0))
     archive = add_to_archive(init_archive(8, 2), jnp.array([[0.0, 0.0]]), 0.1)
     batch = Transition(
         obs=jnp.zeros((2, 1)), action=jnp.zeros((2, 1)), reward=jnp.array([5.0, 5.0]),
@@ -66,7 +68,7 @@ def test_novelty_reward_update_offers_visited_descriptors_of_valid_steps() -> No
     )
     mask = jnp.ones((t, n)).at[1:, 1].set(0.0)  # 4 valid steps
     ev = Evaluation(jnp.zeros(n), jnp.zeros((n, 2)), {"transitions": tr, "mask": mask}, jnp.zeros((), jnp.int32))
-    hook = NoveltyReward(descriptor_size=2, acceptance_threshold=0.5, max_size=16, candidates_per_update=64)
+    hook = NoveltyReward(2, NoveltyConfig(acceptance_threshold=0.5, archive_max_size=16, candidates_per_update=64))
     archive = hook.init(ev, jax.random.PRNGKey(0))
     stored = {tuple(map(float, row)) for row in np.asarray(archive.data[: int(archive.size)])}
     valid = {tuple(map(float, row)) for row in np.asarray(desc)[np.asarray(mask) > 0]}
@@ -74,7 +76,7 @@ def test_novelty_reward_update_offers_visited_descriptors_of_valid_steps() -> No
 
 
 def test_qdpg_emitter_has_ga_qpg_and_a_dpg_with_its_own_reward() -> None:
-    em = qdpg_emitter(10, nets.deterministic_policy(2, (8,), "tanh"), 3, 2, 2, PGConfig(critic_hidden=(8,)))
+    em = qdpg_emitter(10, nets.deterministic_policy(2, (8,), "tanh"), 3, 2, 2, PGConfig(td3=dataclasses.replace(PG_TD3, hidden=(8,))))
     ga, qpg, dpg = em.emitters
     assert (ga.batch_size, qpg.batch_size, dpg.batch_size) == (4, 3, 3)
     assert isinstance(qpg, PGEmitter) and qpg.relabel is None

@@ -11,7 +11,7 @@ import pytest
 
 from qdrl.qd.pareto import hypervolume_exact
 from qdrl.tasks import TASKS
-from qdrl.tasks.mo import TRUE_HYPERVOLUME, num_objectives_of, true_front
+from qdrl.tasks.mo import MO_TASKS, TRUE_HYPERVOLUME, true_front
 
 
 def _rastrigin(x: np.ndarray) -> float:
@@ -56,9 +56,10 @@ def test_true_fronts_reach_the_known_hypervolumes(name: str) -> None:
 
 
 def test_objectives_are_known_before_building_and_reference_points_are_checked() -> None:
-    assert num_objectives_of({"name": "dtlz2", "num_objectives": 4}) == 4
-    assert num_objectives_of({"name": "halfcheetah_multi"}) == 2
-    assert num_objectives_of({"name": "arm"}) == 1
+    assert MO_TASKS["dtlz2"].num_objectives({"name": "dtlz2", "num_objectives": 4}) == 4
+    assert MO_TASKS["halfcheetah_multi"].num_objectives({"name": "halfcheetah_multi"}) == 2
+    assert TASKS["arm"].num_objectives({"name": "arm"}) == 1
+    assert TASKS["halfcheetah_multi"].policy and TASKS["point_maze"].policy and not TASKS["zdt1"].policy
     assert TASKS["dtlz2"](num_dims=7, num_objectives=4).num_objectives == 4
     with pytest.raises(ValueError, match=r"task.reference_point: expected 2 numbers"):
         TASKS["zdt1"](reference_point=(1.0,))

@@ -40,17 +40,17 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from qdrl.config import OneOf, PositiveFloat, PositiveInt, Range, check_fields
-from qdrl.qd.base import AddResult, Evaluation, Repertoire
+from qdrl.qd.base import Evaluation, Repertoire
 from qdrl.qd.cma_es import CMAES, CMAESState, EigenGapRule
 from qdrl.qd.emitters.multi import tree_select
 from qdrl.qd.emitters.rankers import (
     RANKERS,
     Outcome,
-    outcome,
     random_direction,
     rank,
     uses_direction,
 )
+from qdrl.qd.emitters.scheduler import InstancesAsEmitter
 from qdrl.types import Array, Genotype, PRNGKey
 
 __all__ = [
@@ -119,6 +119,16 @@ class CMAEmitterConfig:
         """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
         check_fields(self, section)
 
+    @property
+    def offspring(self) -> int:
+        """Offspring per iteration: num_instances x batch_size."""
+        return self.num_instances * self.batch_size
+
+    @property
+    def instance_size(self) -> int:
+        """Offspring of one instance per iteration (every arm of a pool emits as many)."""
+        return self.batch_size
+
 
 class CMAEmitterState(NamedTuple):
     """Every leaf but `clock` has a leading instance axis K."""
@@ -147,7 +157,7 @@ def must_restart(restart_rule: str | int, stopped: Array, status: Array, generat
 
 
 @dataclasses.dataclass(eq=False)
-class CMAEmitter:
+class CMAEmitter(InstancesAsEmitter):
     """`num_instances` CMA-ES searches in genotype space; batch_size = num_instances * lambda.
 
     Args:
@@ -177,7 +187,7 @@ class CMAEmitter:
         self.es = CMAES(
             int(flat.shape[0]), c.batch_size, float(c.sigma0), c.separable, c.eigen_gap, c.update_rule
         )
-        self.batch_size = c.num_instances * c.batch_size
+        self.batch_size = c.offspring
 
     @property
     def num_instances(self) -> int:
@@ -244,11 +254,6 @@ class CMAEmitter:
             x = jnp.clip(x, self.genotype_low, self.genotype_high)
         return jax.vmap(jax.vmap(self.unravel))(x)
 
-    def emit(self, state: CMAEmitterState, repertoire: Repertoire, key: PRNGKey) -> Genotype:
-        """`batch_size` offspring, instance after instance."""
-        per_instance = self.emit_instances(state, repertoire, key)
-        return jax.tree.map(lambda x: x.reshape((self.batch_size, *x.shape[2:])), per_instance)
-
     def update_instances(
         self,
         state: CMAEmitterState,
@@ -284,31 +289,6 @@ class CMAEmitter:
             restarts=state.restarts + restart.astype(jnp.int32),
             restarted=restart,
             clock=state.clock + 1,
-        )
-
-    def update(
-        self,
-        state: CMAEmitterState,
-        repertoire: Repertoire,
-        genotypes: Genotype,
-        evaluation: Evaluation,
-        added: AddResult,
-        key: PRNGKey,
-    ) -> CMAEmitterState:
-        """Every instance learns from its own lambda offspring (rows in `emit` order)."""
-        out = outcome(repertoire, evaluation.fitnesses, evaluation.descriptors, added)
-        k, lam = self.num_instances, self.instance_batch_size
-
-        def split(x: Array) -> Array:
-            return x.reshape((k, lam, *x.shape[1:]))
-
-        return self.update_instances(
-            state,
-            repertoire,
-            jax.tree.map(split, genotypes),
-            jax.tree.map(split, out),
-            jnp.ones((k,), bool),
-            key,
         )
 
     def restarted(self, state: CMAEmitterState) -> Array:

@@ -72,9 +72,10 @@ class DCRLConfig(PGConfig):
     # Length scale of the similarity exp(-||d - d'|| / lengthscale), in normalised
     # descriptor units (each dimension spans [-1, 1]).
     lengthscale: PositiveFloat = 0.1
-    # Added to every reward before clipping it at 0 and scaling it by the similarity;
-    # QDax wraps the environment in its task's reward offset (halfcheetah_uni 9.231).
-    reward_offset: float = 0.0
+    # Added to every reward before clipping it at 0 and scaling it by the similarity, as
+    # QDax wraps the environment in its task's reward offset; None: the task's per-step
+    # offset, -qd_offset / episode length (`qdrl.qd.emitters.qd_rl.make_dcrl_me`), else 0.
+    reward_offset: float | None = None
 
     def check(self, section: str = "dcrl") -> None:
         """Raises ValueError naming the first `section.<field>` its declared type refuses."""
@@ -207,16 +208,12 @@ class DCRLEmitter:
         self._low, self._high = low, high
         self.descriptor_size = int(low.shape[0])
         self._first_layer = first_layer_name(self.policy_network, self.obs_size, self.descriptor_size)
+        td3 = self.config.td3
         self.networks = TD3Networks(
-            policy=self.policy_network,
-            critic=nets.twin_q_critic(self.config.critic_hidden, "relu"),
+            policy=self.policy_network, critic=nets.twin_q_critic(td3.hidden, td3.activation)
         )
-        self.agent = make_td3(
-            self.config.td3_config(),
-            self.obs_size + self.descriptor_size,
-            self.action_size,
-            self.networks,
-        )
+        self.agent = make_td3(td3, self.obs_size + self.descriptor_size, self.action_size, self.networks)
+        self._reward_offset = 0.0 if self.config.reward_offset is None else self.config.reward_offset
         # A parent reads only the observation part of the conditioned input: the same
         # TD3 actor step then trains it against Q(s, a | d').
         obs_size = self.obs_size
@@ -227,6 +224,10 @@ class DCRLEmitter:
             ),
             critic=self.networks.critic,
         )
+
+    def log_metrics(self, state: DCRLEmitterState) -> dict[str, Array]:
+        """The critic's gradient steps and the buffer's fill."""
+        return {"critic_steps": state.td3.steps, "buffer_size": state.buffer.size}
 
     def normalise(self, desc: Array) -> Array:
         """Descriptors in the task's bounds mapped to [-1, 1]."""
@@ -331,7 +332,7 @@ class DCRLEmitter:
         step = items.step
         reward = relabel_reward(
             step.reward, items.episode_desc, items.target_desc,
-            self.config.lengthscale, self.config.reward_offset,
+            self.config.lengthscale, self._reward_offset,
         )
         return step._replace(
             obs=_condition(step.obs, items.target_desc),

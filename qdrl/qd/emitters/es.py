@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Literal, NamedTuple
+from typing import Annotated, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -34,6 +34,7 @@ import optax
 from jax.flatten_util import ravel_pytree
 
 from qdrl.agents.common import adam_step
+from qdrl.config import NonNegativeFloat, PositiveFloat, PositiveInt, Range, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.emitters.novelty import DescriptorArchive, add_to_archive, init_archive, novelty
 from qdrl.types import Array, Genotype, PRNGKey
@@ -71,45 +72,52 @@ def es_gradient(noise: Array, scores: Array, sigma: float) -> Array:
     return signed @ noise / (2 * m * sigma)
 
 
+@dataclasses.dataclass(frozen=True)
+class ESConfig:
+    """The `[es]` section of ME-ES (Colas et al. 2020): the OpenAI-ES emitter around one elite."""
+
+    population_size: Annotated[int, Range(low=2)] = 64  # perturbations per generation (mirrored pairs; even)
+    sigma: PositiveFloat = 0.02  # std of the parameter perturbations
+    learning_rate: PositiveFloat = 0.01  # Adam step size on the search centre
+    l2_coefficient: NonNegativeFloat = 0.005  # weight decay of the centre
+    num_optimizer_steps: PositiveInt = 10  # generations before restarting from an elite
+    objective: Objective = "explore_exploit"
+    novelty_neighbours: PositiveInt = 10  # k of the k-nearest-neighbour novelty
+    archive_size: PositiveInt = 10_000  # slots of the novelty archive of descriptors
+    exploit_num_cells: PositiveInt = 2  # restarts for fitness draw among this many fittest elites
+    explore_num_cells: PositiveInt = 5  # restarts for novelty draw among this many most novel elites
+    last_updated_size: PositiveInt = 5  # cells last improved by the emitter, a second pool for exploit
+
+    def check(self, section: str = "es") -> None:
+        """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
+        check_fields(self, section)
+        if self.population_size % 2:
+            raise ValueError(f"{section}.population_size: expected an even integer >= 2, got {self.population_size}")
+
+    @property
+    def offspring(self) -> int:
+        """Offspring per iteration: the perturbations and the centre."""
+        return self.population_size + 1
+
+
 @dataclasses.dataclass(eq=False)
 class ESEmitter:
-    """ME-ES's emitter. `batch_size` = `population_size` perturbations + the centre."""
+    """ME-ES's emitter. `batch_size` = `config.population_size` perturbations + the centre.
 
-    population_size: int
+    `archive_threshold`: a descriptor enters the novelty archive when farther than this
+    from every stored one (0: every descriptor enters).
+    """
+
+    config: ESConfig
     genotype_example: Genotype
-    sigma: float = 0.02
-    learning_rate: float = 0.01
-    l2_coefficient: float = 0.005
-    num_optimizer_steps: int = 10
-    objective: Objective = "fitness"
     descriptor_size: int = 2
-    novelty_neighbours: int = 10
-    archive_size: int = 10_000
     archive_threshold: float = 0.0
-    # Restart draws: among the fittest elites (exploit), the most novel ones (explore),
-    # and the cells last improved by this emitter (ME-ES: 2, 5, 5).
-    exploit_num_cells: int = 2
-    explore_num_cells: int = 5
-    last_updated_size: int = 5
     batch_size: int = dataclasses.field(init=False)
     unravel: Callable[[Array], Genotype] = dataclasses.field(init=False)
 
     def __post_init__(self) -> None:
-        if self.population_size < 2 or self.population_size % 2:
-            raise ValueError(f"population_size: expected an even integer >= 2, got {self.population_size}")
-        for name in ("sigma", "learning_rate"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: expected a number > 0, got {getattr(self, name)}")
-        if self.l2_coefficient < 0:
-            raise ValueError(f"l2_coefficient: expected a number >= 0, got {self.l2_coefficient}")
-        for name in ("num_optimizer_steps", "exploit_num_cells", "explore_num_cells", "last_updated_size"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                raise ValueError(f"{name}: expected a positive integer, got {getattr(self, name)!r}")
-        if self.objective not in ("fitness", "novelty", "explore_exploit"):
-            raise ValueError(
-                f"objective: expected 'fitness', 'novelty' or 'explore_exploit', got {self.objective!r}"
-            )
-        self.batch_size = self.population_size + 1
+        self.config.check()
+        self.batch_size = self.config.offspring
         _, self.unravel = ravel_pytree(self.genotype_example)
 
     def _flat(self, genotypes: Genotype) -> Array:
@@ -118,7 +126,7 @@ class ESEmitter:
     def _restart(
         self, centre: Array, key: PRNGKey, archive: DescriptorArchive, restarts: Array, recent: Array
     ) -> ESState:
-        m = self.population_size // 2
+        m = self.config.population_size // 2
         return ESState(
             centre=centre,
             opt_state=optax.scale_by_adam().init(centre),
@@ -143,15 +151,15 @@ class ESEmitter:
         fitnesses = repertoire.fitnesses
         filled = fitnesses > -jnp.inf
         coin_key, best_key, recent_key, novel_key = jax.random.split(key, 4)
-        best = _uniform_top(best_key, jnp.arange(fitnesses.shape[0]), fitnesses, self.exploit_num_cells)
+        best = _uniform_top(best_key, jnp.arange(fitnesses.shape[0]), fitnesses, self.config.exploit_num_cells)
         recent_fit = jnp.where(recent >= 0, fitnesses[jnp.maximum(recent, 0)], -jnp.inf)
-        from_recent = _uniform_top(recent_key, recent, recent_fit, self.exploit_num_cells)
+        from_recent = _uniform_top(recent_key, recent, recent_fit, self.config.exploit_num_cells)
         use_recent = (jax.random.uniform(coin_key) < 0.5) & jnp.any(recent_fit > -jnp.inf)
         exploit = jnp.where(use_recent, from_recent, best)
         scores = jnp.where(
-            filled, novelty(archive, repertoire.descriptors, self.novelty_neighbours), -jnp.inf
+            filled, novelty(archive, repertoire.descriptors, self.config.novelty_neighbours), -jnp.inf
         )
-        explore = _uniform_top(novel_key, jnp.arange(fitnesses.shape[0]), scores, self.explore_num_cells)
+        explore = _uniform_top(novel_key, jnp.arange(fitnesses.shape[0]), scores, self.config.explore_num_cells)
         return jnp.where(novelty_phase, explore, exploit).astype(jnp.int32)
 
     def init(
@@ -161,17 +169,17 @@ class ESEmitter:
         pick_key, noise_key = jax.random.split(key)
         centre = self._flat(repertoire.sample(pick_key, 1))[0]
         archive = add_to_archive(
-            init_archive(self.archive_size, self.descriptor_size), evaluation.descriptors,
+            init_archive(self.config.archive_size, self.descriptor_size), evaluation.descriptors,
             self.archive_threshold,
         )
-        recent = jnp.full((self.last_updated_size,), -1, jnp.int32)
+        recent = jnp.full((self.config.last_updated_size,), -1, jnp.int32)
         return self._restart(centre, noise_key, archive, jnp.zeros((), jnp.int32), recent)
 
     def emit(self, state: ESState, repertoire: Repertoire, key: PRNGKey) -> Genotype:
         """theta + sigma eps_i, theta - sigma eps_i, then theta."""
         del repertoire, key
         flat = jnp.concatenate(
-            [state.centre + self.sigma * state.noise, state.centre - self.sigma * state.noise,
+            [state.centre + self.config.sigma * state.noise, state.centre - self.config.sigma * state.noise,
              state.centre[None]]
         )
         return jax.vmap(self.unravel)(flat)
@@ -181,9 +189,9 @@ class ESEmitter:
         return self._novelty_phase(state.restarts)
 
     def _novelty_phase(self, restarts: Array) -> Array:
-        if self.objective == "fitness":
+        if self.config.objective == "fitness":
             return jnp.asarray(False)
-        if self.objective == "novelty":
+        if self.config.objective == "novelty":
             return jnp.asarray(True)
         return restarts % 2 == 1  # exploit first, then explore, alternating
 
@@ -198,14 +206,14 @@ class ESEmitter:
     ) -> ESState:
         """ES step from the perturbations' scores; restart from an elite every `num_optimizer_steps`."""
         del genotypes
-        n = self.population_size
+        n = self.config.population_size
         fit = evaluation.fitnesses[:n]
         # A failed evaluation (NaN) ranks last.
         fit = jnp.where(jnp.isnan(fit), -jnp.inf, fit)
-        nov = novelty(state.archive, evaluation.descriptors[:n], self.novelty_neighbours)
+        nov = novelty(state.archive, evaluation.descriptors[:n], self.config.novelty_neighbours)
         scores = jnp.where(self.use_novelty(state), nov, fit)
-        grad = es_gradient(state.noise, scores, self.sigma) - self.l2_coefficient * state.centre
-        centre, opt_state = adam_step(state.centre, state.opt_state, -grad, self.learning_rate)
+        grad = es_gradient(state.noise, scores, self.config.sigma) - self.config.l2_coefficient * state.centre
+        centre, opt_state = adam_step(state.centre, state.opt_state, -grad, self.config.learning_rate)
         archive = add_to_archive(state.archive, evaluation.descriptors, self.archive_threshold)
         recent = _last_improved(state.recent, jnp.where(added.added, added.cell, -1))
         noise_key, pick_key, restart_key = jax.random.split(key, 3)
@@ -222,7 +230,7 @@ class ESEmitter:
         cell = self.restart_cell(repertoire, archive, recent, self._novelty_phase(restarts), pick_key)
         elite = jax.tree.map(lambda x: x[cell], repertoire.genotypes)
         fresh = self._restart(ravel_pytree(elite)[0], restart_key, archive, restarts, recent)
-        restart = stepped.generation >= self.num_optimizer_steps
+        restart = stepped.generation >= self.config.num_optimizer_steps
         return jax.tree.map(lambda a, b: jnp.where(restart, a, b), fresh, stepped)
 
 

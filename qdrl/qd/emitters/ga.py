@@ -483,6 +483,16 @@ class GAConfig:
         """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
         check_fields(self, section)
 
+    @property
+    def offspring(self) -> int:
+        """Offspring per iteration: num_instances x batch_size."""
+        return self.num_instances * self.batch_size
+
+    @property
+    def instance_size(self) -> int:
+        """Offspring of one instance per iteration (every arm of a pool emits as many)."""
+        return self.batch_size
+
 
 def ga_emitter(
     config: GAConfig, genotype_low: float, genotype_high: float, batch_size: int | None = None
@@ -492,7 +502,7 @@ def ga_emitter(
     Offspring are clipped to finite genotype bounds (an infinite bound clips
     nothing); polynomial mutation needs finite bounds.
     """
-    n = config.num_instances * config.batch_size if batch_size is None else batch_size
+    n = config.offspring if batch_size is None else batch_size
     if config.kind == "isoline":
         lo = genotype_low if math.isfinite(genotype_low) else None
         hi = genotype_high if math.isfinite(genotype_high) else None

@@ -41,7 +41,7 @@ from qdrl.off_policy import TrainConfig, Trainer, TrainState
 from qdrl.placement import Placement
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import isoline_variation
-from qdrl.types import Genotype, PRNGKey
+from qdrl.types import Array, Genotype, PRNGKey
 
 # Fields of an agent state that crossover varies (when the agent has them).
 VARIED_FIELDS = ("policy_params", "critic_params", "log_alpha")
@@ -122,10 +122,7 @@ class MEPBTConfig:
                 "me_pbt.fraction_from_best + me_pbt.fraction_from_repertoire: expected at most 1, "
                 f"got {self.fraction_from_best} + {self.fraction_from_repertoire}"
             )
-        try:
-            self.pbt_config().check()
-        except ValueError as e:  # its search space is ours: name our keys
-            raise ValueError(str(e).replace("pbt.", "me_pbt.")) from e
+        self.pbt_config().check("me_pbt")  # its search space is ours
 
     def train_config(self) -> TrainConfig:
         """The off-policy loop's settings for one agent; one chunk = one training period."""
@@ -143,6 +140,11 @@ class MEPBTConfig:
         """The search space, as `qdrl.pbt` reads it."""
         return pbt.PBTConfig(population_size=self.population_size, num_replace=0, num_best=1,
                              hparams=self.hparams, low=self.low, high=self.high)
+
+    @property
+    def offspring(self) -> int:
+        """Offspring per iteration: the crossover children, then the population's agents."""
+        return self.ga_batch_size + self.population_size
 
     @property
     def num_best(self) -> int:
@@ -175,7 +177,7 @@ class MEPBTEmitter:
     ) -> None:
         config.check()
         self.agent, self.trainer, self.space, self.config = agent, trainer, space, config
-        self.batch_size = config.ga_batch_size + config.population_size
+        self.batch_size = config.offspring
         self.placement = placement or Placement()
 
     def init_genotypes(self, key: PRNGKey, n: int) -> AgentState:
@@ -215,6 +217,10 @@ class MEPBTEmitter:
         children = crossover(x1, x2, k3, cfg.iso_sigma, cfg.line_sigma)
         return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), children, trained)
 
+    def log_metrics(self, state: MEPBTState) -> dict[str, Array]:
+        """Environment steps the population trained for (beside the evaluations' steps)."""
+        return {"train_env_steps": jnp.sum(state.population.env_steps)}
+
     def update(
         self,
         state: MEPBTState,
@@ -229,18 +235,10 @@ class MEPBTEmitter:
         cfg, p = self.config, self.config.population_size
         source_key, sample_key, hp_key, fresh_key = jax.random.split(key, 4)
         fitness = evaluation.fitnesses[cfg.ga_batch_size :]
-        ranked = jnp.argsort(-jnp.where(jnp.isnan(fitness), -jnp.inf, fitness), stable=True)
         n_copy, n_rep = cfg.num_from_best, cfg.num_from_repertoire
-        take = jnp.arange(p)
-        if n_copy:
-            sources = jax.random.choice(source_key, ranked[: cfg.num_best], (n_copy,))
-            take = take.at[ranked[p - n_copy :]].set(sources)
-        pop = state.population
-        pop = pop._replace(
-            agent=jax.tree.map(lambda x: x[take], pop.agent),
-            buffer=jax.tree.map(lambda x: x[take], pop.buffer),
-        )
-        replaced = jnp.zeros((p,), bool).at[ranked[p - n_copy :]].set(n_copy > 0)
+        pop, info = pbt.exploit(source_key, state.population, fitness, cfg.num_best, n_copy)
+        ranked = info.ranked
+        replaced = jnp.zeros((p,), bool).at[info.replaced].set(n_copy > 0)
         if n_rep:
             from_rep = ranked[p - n_copy - n_rep : p - n_copy]
             samples = from_genotype(repertoire.sample(sample_key, n_rep), self._fresh(fresh_key, n_rep))

@@ -54,7 +54,8 @@ from qdrl.qd.emitters.cma import (
     num_parents,
     tree_select,
 )
-from qdrl.qd.emitters.rankers import Outcome, outcome, random_direction, rank, uses_direction
+from qdrl.qd.emitters.rankers import Outcome, random_direction, rank, uses_direction
+from qdrl.qd.emitters.scheduler import InstancesAsEmitter
 from qdrl.qd.repertoires.cells import sample_filled_indices
 from qdrl.types import Array, Genotype, PRNGKey
 
@@ -88,6 +89,11 @@ class OMGMegaConfig:
     def check(self, section: str = "emitter") -> None:
         """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
         check_fields(self, section)
+
+    @property
+    def offspring(self) -> int:
+        """Offspring per iteration."""
+        return self.batch_size
 
 
 @dataclasses.dataclass(eq=False)
@@ -174,6 +180,16 @@ class CMAMegaConfig:
         """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
         check_fields(self, section)
 
+    @property
+    def offspring(self) -> int:
+        """Offspring per iteration: lambda + 1 (theta) per instance."""
+        return self.num_instances * (self.batch_size + 1)
+
+    @property
+    def instance_size(self) -> int:
+        """Offspring of one instance per iteration (every arm of a pool emits as many)."""
+        return self.batch_size + 1
+
 
 class CMAMegaState(NamedTuple):
     """Every leaf but `clock` has a leading instance axis K."""
@@ -190,7 +206,7 @@ class CMAMegaState(NamedTuple):
 
 
 @dataclasses.dataclass(eq=False)
-class CMAMegaEmitter:
+class CMAMegaEmitter(InstancesAsEmitter):
     """CMA-MEGA with `num_instances` solution points; batch_size = num_instances * (lambda + 1).
 
     Args:
@@ -291,10 +307,6 @@ class CMAMegaEmitter:
         offspring = state.theta[:, None, :] + jnp.einsum("kbc,kcn->kbn", state.coeffs, state.jacobian)
         return jnp.concatenate([offspring, state.theta[:, None, :]], axis=1)
 
-    def emit(self, state: CMAMegaState, repertoire: Repertoire, key: PRNGKey) -> Array:
-        """`batch_size` rows, instance after instance (lambda offspring, then theta)."""
-        return self.emit_instances(state, repertoire, key).reshape(self.batch_size, -1)
-
     def update_instances(
         self,
         state: CMAMegaState,
@@ -347,26 +359,6 @@ class CMAMegaEmitter:
             restarts=state.restarts + restart.astype(jnp.int32),
             restarted=restart,
             clock=state.clock + 1,
-        )
-
-    def update(
-        self,
-        state: CMAMegaState,
-        repertoire: Repertoire,
-        genotypes: Genotype,
-        evaluation: Evaluation,
-        added: AddResult,
-        key: PRNGKey,
-    ) -> CMAMegaState:
-        """Every instance learns from its own rows (in `emit` order)."""
-        out = outcome(repertoire, evaluation.fitnesses, evaluation.descriptors, added)
-        k, b = self.num_instances, self.instance_batch_size
-
-        def split(x: Array) -> Array:
-            return x.reshape((k, b, *x.shape[1:]))
-
-        return self.update_instances(
-            state, repertoire, split(genotypes), jax.tree.map(split, out), jnp.ones((k,), bool), key
         )
 
     def restarted(self, state: CMAMegaState) -> Array:

@@ -15,7 +15,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
+from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire, emitter_metrics
 from qdrl.types import Array, Genotype, PRNGKey
 
 
@@ -172,6 +172,14 @@ class MultiEmitter:
                 )
             )
         return tuple(new_states)
+
+    def log_metrics(self, state: tuple[Any, ...]) -> dict[str, Array]:
+        """The sub-emitters' metrics (`qdrl.qd.base.ReportsMetrics`); the first to name one wins."""
+        out: dict[str, Array] = {}
+        for emitter, sub_state in zip(self.emitters, state, strict=True):
+            for name, value in emitter_metrics(emitter, sub_state).items():
+                out.setdefault(name, value)
+        return out
 
     def _check_state(self, state: tuple[Any, ...]) -> None:
         if not isinstance(state, tuple) or len(state) != len(self.emitters):

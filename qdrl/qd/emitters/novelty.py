@@ -23,6 +23,7 @@ import haiku as hk
 import jax
 import jax.numpy as jnp
 
+from qdrl.config import PositiveFloat, PositiveInt, check_fields
 from qdrl.qd.base import Emitter, Evaluation
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.emitters.multi import MultiEmitter, split_batch
@@ -81,34 +82,53 @@ def novelty(archive: DescriptorArchive, descriptors: Array, num_neighbours: int)
 
 
 @dataclasses.dataclass(frozen=True)
+class NoveltyConfig:
+    """The novelty reward of D-PG (the `[dpg]` section's archive keys); defaults: QDax's
+    `DiversityPGConfig` (threshold 0.1, 10000 slots, 5 neighbours)."""
+
+    # A descriptor enters the archive if farther than this from all stored (QDax: 0.1).
+    acceptance_threshold: PositiveFloat = 0.1
+    archive_max_size: PositiveInt = 10_000
+    # k of the k-nearest-neighbour novelty reward (QDax: 5).
+    num_neighbours: PositiveInt = 5
+    # Visited descriptors offered to the archive per update.
+    candidates_per_update: PositiveInt = 256
+    novelty_scale: PositiveFloat = 1.0
+
+    def check(self, section: str = "dpg") -> None:
+        """Raises `ConfigError("section.key: expected ..., got ...")` for a bad value."""
+        check_fields(self, section)
+
+
+@dataclasses.dataclass(frozen=True)
 class NoveltyReward:
     """D-PG's reward hook (`qdrl.qd.emitters.pg.RewardRelabel`): novelty of `next_desc`.
 
     Each update offers `candidates_per_update` descriptors, drawn uniformly from
     the valid steps of the evaluated episodes, to the archive (QDax offers every
-    step, a sequential scan too slow for 1000-step episodes). Defaults: QDax's
-    `DiversityPGConfig` (threshold 0.1, 10000 slots, 5 neighbours).
+    step, a sequential scan too slow for 1000-step episodes).
     """
 
     descriptor_size: int
-    acceptance_threshold: float = 0.1
-    max_size: int = 10_000
-    num_neighbours: int = 5
-    candidates_per_update: int = 256
-    scale: float = 1.0
+    config: NoveltyConfig = NoveltyConfig()
 
     def init(self, evaluation: Evaluation, key: PRNGKey) -> DescriptorArchive:
-        return self.update(init_archive(self.max_size, self.descriptor_size), evaluation, key)
+        archive = init_archive(self.config.archive_max_size, self.descriptor_size)
+        return self.update(archive, evaluation, key)
 
     def update(self, state: DescriptorArchive, evaluation: Evaluation, key: PRNGKey) -> DescriptorArchive:
         transitions: Transition = evaluation.extras["transitions"]
         items, num_valid = flatten_valid(transitions, evaluation.extras["mask"])
-        picks = jax.random.randint(key, (self.candidates_per_update,), 0, jnp.maximum(num_valid, 1))
-        return add_to_archive(state, items.next_desc[picks], self.acceptance_threshold)
+        picks = jax.random.randint(key, (self.config.candidates_per_update,), 0, jnp.maximum(num_valid, 1))
+        return add_to_archive(state, items.next_desc[picks], self.config.acceptance_threshold)
 
     def relabel(self, state: DescriptorArchive, transitions: Transition) -> Transition:
-        reward = self.scale * novelty(state, transitions.next_desc, self.num_neighbours)
+        reward = self.config.novelty_scale * novelty(state, transitions.next_desc, self.config.num_neighbours)
         return transitions._replace(reward=reward.astype(transitions.reward.dtype))
+
+    def log_metrics(self, state: DescriptorArchive) -> dict[str, Array]:
+        """The archive's size."""
+        return {"novelty_archive_size": state.size}
 
 
 def qdpg_emitter(
@@ -142,6 +162,7 @@ def qdpg_emitter(
 
 __all__ = [
     "DescriptorArchive",
+    "NoveltyConfig",
     "NoveltyReward",
     "add_to_archive",
     "init_archive",

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any, NamedTuple, Protocol, TypeVar
+from typing import Annotated, Any, NamedTuple, Protocol, TypeVar
 
 import haiku as hk
 import jax
@@ -34,19 +34,10 @@ import optax
 
 from qdrl import buffers, nets
 from qdrl.agents.base import Agent
-from qdrl.agents.common import Hidden
 from qdrl.agents.td3 import TD3Config, TD3Networks, TD3State, make_td3, td3_actor_step
 from qdrl.buffers import ReplayBuffer
-from qdrl.config import (
-    NonNegativeFloat,
-    NonNegativeInt,
-    PositiveFloat,
-    PositiveInt,
-    PositiveUnitFloat,
-    UnitFloat,
-    check_fields,
-)
-from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
+from qdrl.config import Nested, NonNegativeInt, PositiveFloat, PositiveInt, check_fields
+from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire, emitter_metrics
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.emitters.multi import MultiEmitter, concat_batches, split_batch
 from qdrl.types import Array, Genotype, Params, PRNGKey, PyTree, Transition
@@ -54,12 +45,18 @@ from qdrl.types import Array, Genotype, Params, PRNGKey, PyTree, Transition
 Items = TypeVar("Items")
 
 
+# The TD3 of a policy-gradient emitter: its critic, greedy actor and targets (the
+# actor is the genotypes' network; `hidden` is the critic's). PGA-ME's defaults (QDax).
+PG_TD3 = TD3Config(actor_lr=3e-4, critic_lr=3e-4, hidden=(256, 256), activation="relu")
+
+
 @dataclasses.dataclass(frozen=True)
 class PGConfig:
     """Hyperparameters of a policy-gradient emitter; defaults: PGA-ME (Nilsson & Cully 2021, QDax).
 
-    The TD3 part (critic, greedy actor, targets) is TD3 with these values; the
-    offspring's own optimiser is Adam at `policy_learning_rate`.
+    `td3` is the emitter's TD3 (critic, greedy actor, targets); its keys sit in the
+    emitter's spec section under the names below (`critic_learning_rate` is
+    `td3.critic_lr`, ...). The offspring's own optimiser is Adam at `policy_learning_rate`.
     """
 
     # TD3 critic steps (each also a greedy-actor step every `policy_delay`) per update.
@@ -68,50 +65,27 @@ class PGConfig:
     num_pg_training_steps: NonNegativeInt = 100
     # Adam step size of the actor steps applied to offspring.
     policy_learning_rate: PositiveFloat = 1e-3
-    # Adam step size of the twin critic.
-    critic_learning_rate: PositiveFloat = 3e-4
-    # Adam step size of the greedy actor (TD3's own actor).
-    greedy_learning_rate: PositiveFloat = 3e-4
     # Transitions per sampled batch (critic and offspring steps alike).
     training_batch_size: PositiveInt = 256
     # Slots of the replay buffer.
     replay_buffer_size: PositiveInt = 1_000_000
-    discount: UnitFloat = 0.99
-    # Polyak rate of the target networks.
-    tau: PositiveUnitFloat = 0.005
-    # Target policy smoothing noise and its clip (TD3).
-    policy_noise: NonNegativeFloat = 0.2
-    noise_clip: NonNegativeFloat = 0.5
-    # Greedy actor and targets are updated once every `policy_delay` critic steps.
-    policy_delay: PositiveInt = 2
-    reward_scale: PositiveFloat = 1.0
-    # Hidden widths of each of the twin critics (ReLU).
-    critic_hidden: Hidden = (256, 256)
-
-    def __post_init__(self) -> None:
-        if isinstance(self.critic_hidden, list):
-            object.__setattr__(self, "critic_hidden", tuple(self.critic_hidden))
-
-    def td3_config(self) -> TD3Config:
-        """The TD3 these values describe (its `hidden` is the critic's; the actor is the genotype)."""
-        return TD3Config(
-            actor_lr=self.greedy_learning_rate,
-            critic_lr=self.critic_learning_rate,
-            discount=self.discount,
-            tau=self.tau,
-            reward_scale=self.reward_scale,
-            policy_noise=self.policy_noise,
-            noise_clip=self.noise_clip,
-            policy_delay=self.policy_delay,
-            hidden=self.critic_hidden,
-            activation="relu",
-        )
+    td3: Annotated[
+        TD3Config,
+        Nested(
+            ("critic_learning_rate", "critic_lr"),  # Adam step size of the twin critic
+            ("greedy_learning_rate", "actor_lr"),  # Adam step size of the greedy actor (TD3's own actor)
+            ("discount", "discount"),
+            ("tau", "tau"),  # Polyak rate of the target networks
+            ("policy_noise", "policy_noise"),  # target policy smoothing noise (TD3)
+            ("noise_clip", "noise_clip"),  # ... and its clip
+            ("policy_delay", "policy_delay"),  # greedy actor and targets: once every this many critic steps
+            ("reward_scale", "reward_scale"),
+            ("critic_hidden", "hidden"),  # hidden widths of each of the twin critics (ReLU)
+        ),
+    ] = PG_TD3
 
     def check(self, section: str = "pg") -> None:
-        """Raises ValueError naming the first `section.<field>` its declared type refuses.
-
-        The TD3 fields declare the ranges of `TD3Config`'s, so `td3_config()` is valid.
-        """
+        """Raises ValueError naming the first `section.<key>` its declared type refuses."""
         check_fields(self, section)
 
 
@@ -193,13 +167,11 @@ class PGEmitter:
         self.config.check()
         if not (isinstance(self.batch_size, int) and self.batch_size >= 1):
             raise ValueError(f"batch_size: expected a positive integer, got {self.batch_size!r}")
+        td3 = self.config.td3
         self.networks = TD3Networks(
-            policy=self.policy_network,
-            critic=nets.twin_q_critic(self.config.critic_hidden, "relu"),
+            policy=self.policy_network, critic=nets.twin_q_critic(td3.hidden, td3.activation)
         )
-        self.agent = make_td3(
-            self.config.td3_config(), self.obs_size, self.action_size, self.networks
-        )
+        self.agent = make_td3(td3, self.obs_size, self.action_size, self.networks)
 
     @property
     def num_pg(self) -> int:
@@ -271,6 +243,12 @@ class PGEmitter:
         del repertoire, genotypes, added
         return self._learn(state, evaluation, key)
 
+    def log_metrics(self, state: PGEmitterState) -> dict[str, Array]:
+        """The critic's gradient steps and the buffer's fill; the reward hook's own metrics."""
+        out = {"critic_steps": state.td3.steps, "buffer_size": state.buffer.size}
+        out.update(emitter_metrics(self.relabel, state.relabel))
+        return out
+
     def _sample(self, state: PGEmitterState, key: PRNGKey) -> Transition:
         batch: Transition = buffers.sample(state.buffer, key, self.config.training_batch_size)
         if self.relabel is not None:
@@ -340,6 +318,7 @@ def pga_me_emitter(
 
 
 __all__ = [
+    "PG_TD3",
     "PGConfig",
     "PGEmitter",
     "PGEmitterState",

@@ -30,7 +30,6 @@ from qdrl.qd.emitters.ga import GAConfig, ga_emitter
 from qdrl.qd.emitters.mega import CMAMegaConfig, CMAMegaEmitter, OMGMegaConfig, OMGMegaEmitter
 from qdrl.qd.emitters.scheduler import (
     BanditScheduler,
-    InstancedEmitter,
     SchedulerConfig,
     StatelessInstances,
 )
@@ -44,10 +43,9 @@ __all__ = [
     "EmitterKind",
     "build_emitter",
     "build_pool",
+    "check_gradients",
     "check_pool",
     "emitter_kind_names",
-    "instance_size",
-    "offspring_per_iteration",
     "parse_emitter",
     "uses_cma_es",
 ]
@@ -64,6 +62,19 @@ class EmitterContext:
     descriptor_high: tuple[float, ...]
     gradient_scoring_fn: ScoringFn | None = None  # the task's, when it has gradients
     task_name: str = ""
+
+    @classmethod
+    def of_task(cls, task: Any) -> EmitterContext:
+        """What an emitter may read of `task` (`qdrl.tasks.Task`)."""
+        return cls(
+            genotype_example=task.example_genotype(),
+            genotype_low=float(task.genotype_low),
+            genotype_high=float(task.genotype_high),
+            descriptor_low=tuple(task.descriptor_low),
+            descriptor_high=tuple(task.descriptor_high),
+            gradient_scoring_fn=task.gradient_scoring_fn,
+            task_name=task.name,
+        )
 
 
 def _bound(x: float) -> float | None:
@@ -101,40 +112,53 @@ def _cma_mega(config: CMAMegaConfig, ctx: EmitterContext) -> CMAMegaEmitter:
     )
 
 
+def _ga_instances(config: GAConfig, ctx: EmitterContext) -> StatelessInstances:
+    """A GA in a pool: num_instances copies of one GA of batch_size offspring (it is stateless)."""
+    ga = ga_emitter(config, ctx.genotype_low, ctx.genotype_high, config.batch_size)
+    return StatelessInstances(ga, config.num_instances)
+
+
 @dataclasses.dataclass(frozen=True)
 class EmitterKind:
-    """One name of the registry: its config, its defaults and how it is built.
+    """One name of the registry: its config, how it is built, and what it needs.
 
     `gradients`: "scoring" when the QD loop must evaluate with the task's
     `gradient_scoring_fn` (every offspring's gradients), "emitter" when the
-    emitter calls it itself, "none" otherwise. `instanced`: may join a pool.
+    emitter calls it itself, "none" otherwise. `pool_build`: how the kind joins a
+    bandit pool (`[[emitters]]`) as an instanced emitter; None: it cannot.
+    `cma_es`: it runs CMA-ES (eigendecompositions, for which one LAPACK thread is faster).
     """
 
     config: type[Any]
     build: Callable[[Any, EmitterContext], Any]
     description: str
-    defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     gradients: Literal["none", "scoring", "emitter"] = "none"
-    instanced: bool = True
+    pool_build: Callable[[Any, EmitterContext], Any] | None = None
+    cma_es: bool = False
 
 
 EMITTER_KINDS: dict[str, EmitterKind] = {
-    "isoline": EmitterKind(GAConfig, _ga, "GA: Iso+LineDD variation (MAP-Elites)"),
-    "polynomial": EmitterKind(GAConfig, _ga, "GA: polynomial mutation and crossover"),
-    "cma_improvement": EmitterKind(
-        CMAEmitterConfig, _cma, "CMA-ME's improvement emitter (ranker 2imp; CMA-MAE: imp)"
+    "isoline": EmitterKind(GAConfig, _ga, "GA: Iso+LineDD variation (MAP-Elites)", pool_build=_ga_instances),
+    "polynomial": EmitterKind(
+        GAConfig, _ga, "GA: polynomial mutation and crossover", pool_build=_ga_instances
     ),
-    "cma_optimizing": EmitterKind(CMAEmitterConfig, _cma, "CMA-ME's optimizing emitter (ranker obj)"),
+    "cma_improvement": EmitterKind(
+        CMAEmitterConfig, _cma, "CMA-ME's improvement emitter (ranker 2imp; CMA-MAE: imp)",
+        pool_build=_cma, cma_es=True,
+    ),
+    "cma_optimizing": EmitterKind(
+        CMAEmitterConfig, _cma, "CMA-ME's optimizing emitter (ranker obj)", pool_build=_cma, cma_es=True
+    ),
     "cma_random_direction": EmitterKind(
-        CMAEmitterConfig, _cma, "CMA-ME's random-direction emitter (ranker 2rd)"
+        CMAEmitterConfig, _cma, "CMA-ME's random-direction emitter (ranker 2rd)", pool_build=_cma, cma_es=True
     ),
     "omg_mega": EmitterKind(
         OMGMegaConfig, _omg_mega, "OMG-MEGA: elites stepped along random gradient combinations",
-        gradients="scoring", instanced=False,
+        gradients="scoring",
     ),
     "cma_mega": EmitterKind(
         CMAMegaConfig, _cma_mega, "CMA-MEGA: CMA-ES over gradient coefficients (CMA-MAEGA: ranker imp)",
-        gradients="emitter",
+        gradients="emitter", pool_build=_cma_mega, cma_es=True,
     ),
 }
 GA_KINDS = ("isoline", "polynomial")
@@ -167,67 +191,54 @@ def parse_emitter(
     return build(EMITTER_KINDS[kind].config, merged, section)
 
 
-def offspring_per_iteration(config: Any) -> int:
-    """Offspring one `[emitter]` makes per iteration (CMA-MEGA: lambda + 1 per instance)."""
-    if isinstance(config, CMAMegaConfig):
-        return config.num_instances * (config.batch_size + 1)
-    return int(getattr(config, "num_instances", 1)) * int(config.batch_size)
-
-
-def instance_size(config: Any) -> int:
-    """Offspring of one instance per iteration (a pool's arms all emit this many)."""
-    return int(config.batch_size) + (1 if isinstance(config, CMAMegaConfig) else 0)
-
-
-def _instances(config: Any) -> int:
-    return int(getattr(config, "num_instances", 1))
-
-
 def check_pool(configs: Sequence[Any], scheduler: SchedulerConfig, section: str = "emitters") -> None:
     """Raises ConfigError naming the key unless `configs` can form one bandit pool under `scheduler`."""
     if not configs:
         raise ConfigError(f"{section}: expected at least one [[{section}]] table")
     for i, config in enumerate(configs):
-        if not EMITTER_KINDS[config.kind].instanced:
-            instanced = sorted(k for k, v in EMITTER_KINDS.items() if v.instanced)
+        if EMITTER_KINDS[config.kind].pool_build is None:
+            instanced = sorted(k for k, v in EMITTER_KINDS.items() if v.pool_build is not None)
             raise ConfigError(f"{section}[{i}].kind: expected one of {instanced} in a pool, got {config.kind!r}")
-    size = instance_size(configs[0])
+    size = configs[0].instance_size
     for i, config in enumerate(configs[1:], start=1):
-        if instance_size(config) != size:
-            extra = 1 if isinstance(config, CMAMegaConfig) else 0
+        if config.instance_size != size:
+            extra = config.instance_size - config.batch_size
             raise ConfigError(
                 f"{section}[{i}].batch_size: expected {size - extra} (every instance of a pool emits "
                 f"{size} offspring, as {section}[0] does), got {config.batch_size}"
             )
-    scheduler.check(sum(_instances(c) for c in configs))
+    scheduler.check(sum(int(getattr(c, "num_instances", 1)) for c in configs))
 
 
-def build_emitter(config: Any, ctx: EmitterContext, section: str = "emitter") -> Any:
-    """The emitter of a checked config; ConfigError when it needs gradients the task lacks."""
-    kind = EMITTER_KINDS[config.kind]
-    if kind.gradients != "none" and ctx.gradient_scoring_fn is None:
+def check_gradients(config: Any, ctx: EmitterContext, section: str = "emitter") -> None:
+    """Raises ConfigError naming `section.kind` when the kind needs gradients the task lacks."""
+    if EMITTER_KINDS[config.kind].gradients != "none" and ctx.gradient_scoring_fn is None:
         raise ConfigError(
             f"{section}.kind: {config.kind!r} needs the task's gradients; task {ctx.task_name!r} "
             "has none (tasks with gradients: lp_sphere, lp_rastrigin, lp_plateau, arm)"
         )
-    return kind.build(config, ctx)
+
+
+def build_emitter(config: Any, ctx: EmitterContext, section: str = "emitter") -> Any:
+    """The emitter of a checked config; ConfigError when it needs gradients the task lacks."""
+    check_gradients(config, ctx, section)
+    return EMITTER_KINDS[config.kind].build(config, ctx)
 
 
 def build_pool(
     configs: Sequence[Any], scheduler: SchedulerConfig, ctx: EmitterContext, section: str = "emitters"
 ) -> BanditScheduler:
-    """The bandit scheduler over the emitters of checked `configs` (a GA: num_instances copies)."""
+    """The bandit scheduler over the instanced emitters of checked `configs`."""
     check_pool(configs, scheduler, section)
-    pool: list[InstancedEmitter] = []
+    pool = []
     for i, config in enumerate(configs):
-        if config.kind in GA_KINDS:  # stateless: copies of one GA of batch_size offspring
-            ga = ga_emitter(config, ctx.genotype_low, ctx.genotype_high, config.batch_size)
-            pool.append(StatelessInstances(ga, config.num_instances))
-        else:
-            pool.append(build_emitter(config, ctx, f"{section}[{i}]"))
+        check_gradients(config, ctx, f"{section}[{i}]")
+        build = EMITTER_KINDS[config.kind].pool_build
+        assert build is not None, "checked by check_pool"
+        pool.append(build(config, ctx))
     return BanditScheduler(tuple(pool), scheduler)
 
 
 def uses_cma_es(configs: Sequence[Any]) -> bool:
     """Whether any of these emitters runs a CMA-ES (eigendecompositions: one LAPACK thread helps)."""
-    return any(c.kind in CMA_KINDS or c.kind == "cma_mega" for c in configs)
+    return any(EMITTER_KINDS[c.kind].cma_es for c in configs)

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.config import ConfigError, NonNegativeFloat, PositiveInt, check_fields
-from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire
+from qdrl.qd.base import AddResult, Emitter, Evaluation, Repertoire, emitter_metrics
 from qdrl.qd.emitters.rankers import Outcome, outcome
 from qdrl.types import Array, Genotype, PRNGKey
 
@@ -40,6 +40,7 @@ __all__ = [
     "BanditScheduler",
     "BanditState",
     "InstancedEmitter",
+    "InstancesAsEmitter",
     "SchedulerConfig",
     "StatelessInstances",
     "choose",
@@ -76,6 +77,65 @@ class InstancedEmitter(Protocol):
     def restarted(self, state: Any) -> Array:
         """(K,) bool: restarted at the last update."""
         ...
+
+
+class InstancesAsEmitter:
+    """An instanced emitter used alone: `emit` and `update` over all K instances at once.
+
+    Mixed into emitters that define `num_instances`, `instance_batch_size`,
+    `batch_size` (= K * b), `emit_instances` and `update_instances` (CMA-ME's,
+    CMA-MEGA's): offspring come instance after instance, and every instance learns
+    from its own b rows.
+    """
+
+    batch_size: int
+
+    @property
+    def num_instances(self) -> int:
+        raise NotImplementedError
+
+    @property
+    def instance_batch_size(self) -> int:
+        raise NotImplementedError
+
+    def emit_instances(self, state: Any, repertoire: Repertoire, key: PRNGKey) -> Genotype:
+        raise NotImplementedError
+
+    def update_instances(
+        self, state: Any, repertoire: Repertoire, genotypes: Genotype, out: Outcome,
+        active: Array, key: PRNGKey,
+    ) -> Any:
+        raise NotImplementedError
+
+    def emit(self, state: Any, repertoire: Repertoire, key: PRNGKey) -> Genotype:
+        """`batch_size` offspring, instance after instance."""
+        per_instance = self.emit_instances(state, repertoire, key)
+        return jax.tree.map(lambda x: x.reshape((self.batch_size, *x.shape[2:])), per_instance)
+
+    def update(
+        self,
+        state: Any,
+        repertoire: Repertoire,
+        genotypes: Genotype,
+        evaluation: Evaluation,
+        added: AddResult,
+        key: PRNGKey,
+    ) -> Any:
+        """Every instance learns from its own rows (in `emit` order)."""
+        out = outcome(repertoire, evaluation.fitnesses, evaluation.descriptors, added)
+        k, b = int(self.num_instances), int(self.instance_batch_size)
+
+        def split(x: Array) -> Array:
+            return x.reshape((k, b, *x.shape[1:]))
+
+        return self.update_instances(
+            state, repertoire, jax.tree.map(split, genotypes), jax.tree.map(split, out),
+            jnp.ones((k,), bool), key,
+        )
+
+    def log_metrics(self, state: Any) -> dict[str, Array]:
+        """Restarts of every instance so far."""
+        return {"restarts": jnp.sum(state.restarts)}
 
 
 @dataclasses.dataclass(eq=False)
@@ -263,3 +323,11 @@ class BanditScheduler:
         return BanditState(
             pool=tuple(new_pool), chosen=chosen, successes=successes, selections=selections
         )
+
+    def log_metrics(self, state: BanditState) -> dict[str, Array]:
+        """Restarts of the pool's instances so far (when some member restarts: CMA-ES ones)."""
+        counts = [
+            emitter_metrics(e, s)["restarts"] for e, s in zip(self.pool, state.pool, strict=True)
+            if "restarts" in emitter_metrics(e, s)
+        ]
+        return {"restarts": sum(counts[1:], counts[0])} if counts else {}

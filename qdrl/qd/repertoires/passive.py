@@ -17,11 +17,12 @@ from typing import Literal, TypeVar
 
 import numpy as np
 
+from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires.cells import CellRepertoire, cvt_repertoire, grid_repertoire
 from qdrl.qd.repertoires.unstructured import UnstructuredRepertoire
 from qdrl.types import Array, Descriptor, Fitness
 
-__all__ = ["observe", "passive_archive"]
+__all__ = ["feed", "observe", "passive_archive"]
 
 _Archive = TypeVar("_Archive", CellRepertoire, UnstructuredRepertoire)
 
@@ -64,3 +65,17 @@ def observe(archive: _Archive, descriptors: Descriptor, fitnesses: Fitness) -> _
         raise ValueError("observe is for passive archives (genotypes None); use add instead")
     new, _ = archive.add(None, descriptors, fitnesses)
     return new
+
+
+def feed(
+    archive: CellRepertoire, descriptors: Descriptor, returns: Fitness, qd_offset: float
+) -> tuple[CellRepertoire, dict[str, Array]]:
+    """The passive archive after offering it evaluated episodes, and its QD metrics; jittable.
+
+    `descriptors` (..., D) and `returns` (...) with the same leading axes (episodes, or
+    members x episodes); every RL, PBT and skill-discovery run measures itself so.
+    """
+    archive = observe(
+        archive, descriptors.reshape((-1, descriptors.shape[-1])), returns.reshape((-1,))
+    )
+    return archive, qd_metrics(archive, qd_offset)

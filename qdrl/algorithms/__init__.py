@@ -1,0 +1,96 @@
+"""THE table of algorithms: every name a spec's `experiment.algorithm` may give, and its recipe.
+
+A recipe (`qdrl.algorithms.base.Recipe`) parses its spec sections into typed
+configs and builds pure functions (`Algorithm`); the experiment driver
+(`qdrl.experiment`) jits, places, times, checkpoints and logs them. Adding an
+algorithm adds a row here (or, from outside the package, `register`); the driver
+is never edited:
+
+    from qdrl.algorithms import register
+    from qdrl.algorithms.qd import EmitterSource, qd_recipe
+
+    register("gauss_me", qd_recipe(EmitterSource.of_section("gauss", GaussConfig, make_gauss_emitter)))
+"""
+
+from __future__ import annotations
+
+import difflib
+
+from qdrl.algorithms import cma_es, mo, pbt, qd, rl, skills
+from qdrl.algorithms.base import Algorithm, BuildContext, ExperimentConfig, LogConfig, Recipe
+from qdrl.config import ConfigError
+
+__all__ = [
+    "ALGORITHMS",
+    "Algorithm",
+    "BuildContext",
+    "ExperimentConfig",
+    "LogConfig",
+    "Recipe",
+    "algorithm_names",
+    "length_keys",
+    "recipe",
+    "register",
+]
+
+ALGORITHMS: dict[str, Recipe] = {
+    # RL and skill discovery, each measured by a passive archive
+    "sac": rl.SAC,
+    "td3": rl.TD3,
+    "sac_pbt": pbt.SAC_PBT,
+    "td3_pbt": pbt.TD3_PBT,
+    "diayn": skills.DIAYN,
+    "dads": skills.DADS,
+    "smerl_diayn": skills.SMERL_DIAYN,
+    "smerl_dads": skills.SMERL_DADS,
+    # MAP-Elites with the emitters of the registry
+    "map_elites": qd.MAP_ELITES,
+    "cvt_map_elites": qd.CVT_MAP_ELITES,
+    "cma_me": qd.CMA_ME,
+    "cma_mae": qd.CMA_MAE,
+    "omg_mega": qd.OMG_MEGA,
+    "cma_mega": qd.CMA_MEGA,
+    "cma_maega": qd.CMA_MAEGA,
+    # QD-RL: MAP-Elites with actor-critic, evolution-strategy and PBT emitters
+    "pga_me": qd.PGA_ME_RECIPE,
+    "qdpg": qd.QDPG_RECIPE,
+    "dcrl_me": qd.DCRL_ME_RECIPE,
+    "me_es": qd.ME_ES_RECIPE,
+    "me_pbt_sac": qd.ME_PBT_SAC,
+    "me_pbt_td3": qd.ME_PBT_TD3,
+    # multi-objective
+    "mome": mo.MOME,
+    "nsga2": mo.NSGA2,
+    "spea2": mo.SPEA2,
+    # optimisation without an archive
+    "cma_es": cma_es.CMA_ES,
+}
+
+
+def algorithm_names() -> list[str]:
+    """The algorithms a spec may name (`experiment.algorithm`)."""
+    return sorted(ALGORITHMS)
+
+
+def recipe(name: str) -> Recipe:
+    """The recipe of algorithm `name`; ConfigError naming the closest names otherwise."""
+    if name in ALGORITHMS:
+        return ALGORITHMS[name]
+    close = difflib.get_close_matches(name, ALGORITHMS, n=3, cutoff=0.6)
+    hint = f" (close names: {', '.join(close)})" if close else ""
+    raise ConfigError(f"experiment.algorithm: expected one of {algorithm_names()}, got {name!r}{hint}")
+
+
+def register(name: str, entry: Recipe, replace: bool = False) -> None:
+    """Adds algorithm `name` to the table (from outside the package); a name already there is
+    refused unless `replace`."""
+    if not isinstance(entry, Recipe):
+        raise TypeError(f"register: expected a qdrl.algorithms.Recipe, got {type(entry).__name__}")
+    if name in ALGORITHMS and not replace:
+        raise ValueError(f"register: algorithm {name!r} is already in the table (pass replace=True)")
+    ALGORITHMS[name] = entry
+
+
+def length_keys() -> tuple[str, ...]:
+    """The spec keys that set a run's length, over every algorithm of the table."""
+    return tuple(dict.fromkeys(r.length_key for r in ALGORITHMS.values()))

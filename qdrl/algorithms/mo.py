@@ -1,0 +1,306 @@
+"""Multi-objective recipes: MOME, NSGA-II and SPEA2 on the one QD loop.
+
+- `mome` (Pierrot et al. 2022): MAP-Elites whose cells hold Pareto fronts
+  (`qdrl.qd.repertoires.mome`), with the emitters of `[emitter]` (QDax's example:
+  polynomial mutation and crossover); sections `[task]`, `[repertoire]`,
+  `[emitter]`, `[qd]`, `[mome]`.
+- `nsga2` (Deb et al. 2002) and `spea2` (Zitzler et al. 2001): a population of
+  `population.size` with its survival rule (`qdrl.qd.populations`), SBX and
+  polynomial mutation; sections `[task]`, `[population]`, `[qd]`.
+
+Each log point records the metrics of `qdrl.qd.mo_metrics` (exact hypervolumes: in
+the compiled loop for two objectives, on the host with moocore for more); the end
+writes `front.csv` (the global front), `repertoire.npz` / `repertoire.csv` (MOME)
+or `population.npz` / `population.csv` (every stored solution), and plots of the
+global front, the per-cell hypervolumes and a few cells' fronts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import jax
+import numpy as np
+
+from qdrl import plotting
+from qdrl.algorithms.base import (
+    Algorithm,
+    BuildContext,
+    DescriptorSpace,
+    ExperimentConfig,
+    Progress,
+    QDParts,
+    Recipe,
+    Row,
+    Sections,
+    scalar,
+)
+from qdrl.algorithms.qd import (
+    Container,
+    parse_task_and_qd,
+    qd_recipe,
+    registry_source,
+    scoring_factory,
+)
+from qdrl.algorithms.task_spec import make_task_of
+from qdrl.config import ConfigError, NonNegativeFloat, NonNegativeInt, PositiveInt, UnitFloat, build
+from qdrl.placement import check_divisible
+from qdrl.qd.emitters.ga import sbx_emitter
+from qdrl.qd.map_elites import MapElites
+from qdrl.qd.mo_metrics import exact_hypervolumes, global_front, mo_metrics
+from qdrl.qd.populations import Survival, pareto_population
+from qdrl.qd.repertoires.mome import mome_repertoire
+from qdrl.tasks import TASKS, Task
+
+__all__ = ["MOME", "NSGA2", "SPEA2", "MOMEConfig", "PopulationConfig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class MOMEConfig:
+    """The `[mome]` section: the Pareto front of each cell."""
+
+    pareto_front_max_length: PositiveInt = 50  # most solutions a cell's front holds (QDax: 50)
+    # Who leaves a front that overflows: the most crowded ("crowding", the paper's spread)
+    # or the newest by index order ("index", what QDax does).
+    overflow: Literal["crowding", "index"] = "crowding"
+
+
+@dataclasses.dataclass(frozen=True)
+class PopulationConfig:
+    """The `[population]` section of NSGA-II and SPEA2: size and variation (Deb et al. 2002)."""
+
+    size: PositiveInt = 100  # N: offspring per iteration, and survivors
+    crossover_eta: NonNegativeFloat = 20.0  # SBX distribution index
+    crossover_prob: UnitFloat = 0.9  # share of the pairs that cross
+    mutation_eta: NonNegativeFloat = 20.0  # polynomial mutation distribution index
+    # Each gene mutates with this probability; 0 means 1 / (number of genes), the usual choice.
+    mutation_prob: UnitFloat = 0.0
+    # A child equal to one of its parents is drawn again up to this many times (0: never), as
+    # pymoo draws duplicates again; the draws are made at once.
+    redraws: NonNegativeInt = 1
+    # NSGA-II's cut of its last front: "distance", one cut by the crowding distance (Deb et al.
+    # 2002), or "pruning", one member at a time with the distances computed again (Kukkonen &
+    # Deb 2006; pymoo's crowding_func="pcd"). SPEA2 has its own truncation.
+    crowding: Literal["distance", "pruning"] = "distance"
+
+
+def check_mo_task(task: Mapping[str, Any], algorithm: str) -> None:
+    """Refuses a resolved `[task]` of one objective, or a reference point of the wrong length
+    (from the task registry's entry: nothing is built)."""
+    m = TASKS[task["name"]].num_objectives(task)
+    if m < 2:
+        names = sorted(n for n, entry in TASKS.items() if entry.num_objectives({"name": n}) > 1)
+        raise ConfigError(
+            f"task.name: expected a multi-objective task for {algorithm} (one of {names}), "
+            f"got {task['name']!r}"
+        )
+    ref = task.get("reference_point")
+    if ref is not None and len(ref) != m:
+        raise ConfigError(
+            f"task.reference_point: expected {m} numbers (one per objective of {task['name']!r}), "
+            f"got {list(ref)}"
+        )
+
+
+def _no_reevaluation(qd: Any) -> None:
+    if qd.reevaluate_samples:
+        raise ConfigError(f"qd.reevaluate_samples: expected 0 for a multi-objective run, got {qd.reevaluate_samples}")
+
+
+def mo_log_row(state: Any, metrics: Any, task: Task) -> Row:
+    """The row of a multi-objective chunk: counters, the last iteration's metrics (exact
+    hypervolumes on the host when the loop has none: more than two objectives)."""
+    m = jax.device_get(metrics)
+    row: Row = {
+        "iteration": int(state.iteration),
+        "evaluations": int(state.evaluations),
+        "env_steps": int(state.env_steps),
+    }
+    for key, values in m.items():
+        if key != "added":
+            row[key] = scalar(np.asarray(values)[-1])
+    if "global_hypervolume" not in row:
+        hv = exact_hypervolumes(jax.device_get(state.repertoire), _reference(task))
+        row.update({k: v for k, v in hv.items() if k != "cell_hypervolumes"})
+    row["added_per_iter"] = float(np.mean(m["added"]))
+    return row
+
+
+def _reference(task: Task) -> tuple[float, ...]:
+    assert task.reference_point is not None, "multi-objective tasks have a reference point"
+    return tuple(task.reference_point)
+
+
+def _metrics(task: Task) -> Callable[[Any, float], dict[str, Any]]:
+    reference = _reference(task)
+
+    def metrics(container: Any, qd_offset: float) -> dict[str, Any]:
+        del qd_offset
+        return mo_metrics(container, reference)
+
+    return metrics
+
+
+def mo_finish(container: Any, out_dir: Path, task: Task, export_name: str, algorithm: str) -> dict[str, Any]:
+    """The global front (front.csv and its plot), the container's export, hypervolume plots."""
+    ref = _reference(task)
+    label, title = algorithm, f"{algorithm} on {task.name}"
+    front = global_front(container)
+    hv = exact_hypervolumes(container, ref)
+    _write_front(front, out_dir / "front.csv")
+    _export(container, out_dir, export_name)
+    plotting.plot_pareto_front(
+        {label: front}, out_dir / "plots" / "front.png", reference=ref,
+        true_front=None if task.true_front is None else task.true_front(), title=title,
+    )
+    cells = hv.pop("cell_hypervolumes", None)
+    if cells is not None:
+        plotting.plot_cell_hypervolumes(
+            container.cells, cells, out_dir / "plots" / "cell_hypervolumes.png",
+            task.descriptor_low, task.descriptor_high, title=title,
+        )
+        plotting.plot_cell_fronts(
+            np.asarray(container.fitnesses), cells, out_dir / "plots" / "cell_fronts.png",
+            reference=ref, title=title,
+        )
+    summary: dict[str, Any] = {
+        "reference_point": list(ref),
+        "global_front_size": len(front),
+        **{f"exact_{k}": v for k, v in hv.items()},
+    }
+    if task.true_hypervolume is not None:
+        summary["true_front_hypervolume"] = task.true_hypervolume
+        summary["hypervolume_ratio"] = hv["global_hypervolume"] / task.true_hypervolume
+    return summary
+
+
+def _write_front(front: np.ndarray, path: Path) -> None:
+    header = ",".join(f"objective_{k}" for k in range(front.shape[1]))
+    np.savetxt(path, front, delimiter=",", header=header, comments="")
+
+
+def _export(container: Any, out_dir: Path, name: str) -> None:
+    """`<name>.npz` (as `export_npz`: fitnesses, descriptors, genotype leaves named `genotypes` +
+    key path, centroids) and `<name>.csv`, one row per stored solution (cell and slot, or slot)."""
+    fit = np.asarray(container.fitnesses)
+    desc = np.asarray(container.descriptors)
+    arrays: dict[str, np.ndarray] = {"fitnesses": fit, "descriptors": desc}
+    for key_path, leaf in jax.tree_util.tree_flatten_with_path(container.genotypes)[0]:
+        arrays["genotypes" + jax.tree_util.keystr(key_path)] = np.asarray(leaf)
+    if hasattr(container, "centroids"):
+        arrays["centroids"] = np.asarray(container.centroids)
+    np.savez_compressed(out_dir / f"{name}.npz", **arrays)  # type: ignore[arg-type]
+    m, d = fit.shape[-1], desc.shape[-1]
+    flat_f, flat_d = fit.reshape(-1, m), desc.reshape(-1, d)
+    keep = np.all(np.isfinite(flat_f), axis=1)
+    slots = fit.shape[1] if fit.ndim == 3 else len(fit)
+    index = np.arange(len(flat_f))
+    cols = [index // slots, index % slots, *flat_f.T, *flat_d.T]
+    names = ["cell", "slot", *(f"objective_{k}" for k in range(m)), *(f"descriptor_{k}" for k in range(d))]
+    table = np.stack(cols, axis=1)[keep]
+    fmt = ["%d", "%d", *(["%.9g"] * (m + d))]
+    np.savetxt(out_dir / f"{name}.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)
+
+
+# -- MOME: MAP-Elites with a Pareto front per cell --
+
+
+def _parse_mome(spec: Mapping[str, Any], sections: Sections, exp: ExperimentConfig) -> Sections:
+    mome = build(MOMEConfig, spec.get("mome", {}), "mome")
+    check_mo_task(sections["task"], exp.algorithm)
+    _no_reevaluation(sections["qd"])
+    return {"mome": mome}
+
+
+def _wrap_mome(cells: Any, sections: Sections, task: Task, example: Any) -> Any:
+    c: MOMEConfig = sections["mome"]
+    return mome_repertoire(cells, example, task.num_objectives, c.pareto_front_max_length, c.overflow)
+
+
+MOME_CONTAINER = Container(
+    parse=_parse_mome,
+    wrap=_wrap_mome,
+    metrics=_metrics,
+    log_row=mo_log_row,
+    finish=lambda rep, out_dir, task, algorithm: mo_finish(rep, out_dir, task, "repertoire", algorithm),
+    progress_keys=("moqd_score", "global_hypervolume", "coverage", "evaluations_per_s"),
+)
+MOME = qd_recipe(
+    registry_source(default_repertoire="cvt"), container=MOME_CONTAINER,
+    description="MOME (Pierrot et al. 2022): a Pareto front per cell",
+)
+
+
+# -- NSGA-II and SPEA2: a population with its survival rule --
+
+
+def _parse_population(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
+    """The checked sections of an NSGA-II or SPEA2 spec; `qd.init_batch_size` defaults to the
+    population size."""
+    population = build(PopulationConfig, spec.get("population", {}), "population")
+    task, qd = parse_task_and_qd(
+        spec, exp, population.size, "population.size", default_task="zdt1",
+        qd_defaults={"init_batch_size": population.size},
+    )
+    check_divisible(population.size, exp.num_devices, "population.size")
+    _no_reevaluation(qd)
+    check_mo_task(task, exp.algorithm)
+    if population.crowding != "distance" and exp.algorithm != "nsga2":
+        raise ConfigError(
+            f"population.crowding: expected \"distance\" for {exp.algorithm} (pruning is NSGA-II's "
+            f"cut of its last front), got {population.crowding!r}"
+        )
+    if TASKS[task["name"]].policy:  # policies: unbounded genotypes, which SBX cannot cross
+        raise ConfigError(
+            f"task.name: expected a task with bounded genotypes for {exp.algorithm} (SBX and "
+            f"polynomial mutation need bounds), got the policy task {task['name']!r}"
+        )
+    return {"task": task, "population": population, "qd": qd}
+
+
+def _build_population(sections: Sections, ctx: BuildContext) -> Algorithm:
+    task = make_task_of(sections["task"])
+    c: PopulationConfig = sections["population"]
+    qd = sections["qd"]
+    mutation_prob = c.mutation_prob or 1.0 / task.genotype_size
+    emitter = sbx_emitter(
+        c.size, c.crossover_eta, c.mutation_eta, mutation_prob, task.genotype_low,
+        task.genotype_high, crossover_prob=c.crossover_prob, redraws=c.redraws,
+    )
+    survival: Survival = "nsga2" if ctx.algorithm == "nsga2" else "spea2"
+
+    def empty(centroids: Any = None) -> Any:
+        del centroids
+        return pareto_population(
+            task.example_genotype(), c.size, task.num_objectives, task.descriptor_size, survival, c.crowding
+        )
+
+    me = MapElites(task.scoring_fn, emitter, empty(), metrics_fn=_metrics(task), placement=ctx.placement)
+    def init(key: jax.Array) -> Any:
+        _, init_key, run_key = jax.random.split(key, 3)
+        return me.init(task.init_genotypes(init_key, qd.init_batch_size), run_key)
+
+    return Algorithm(
+        task=task.name,
+        sections=sections,
+        num_chunks=qd.num_iterations // qd.log_every,
+        progress=Progress(("global_hypervolume", "num_solutions", "evaluations_per_s"), "iteration", qd.num_iterations),
+        init=init,
+        chunk=lambda state: me.run(state, qd.log_every),
+        log_row=lambda state, metrics: mo_log_row(state, metrics, task),
+        finish=lambda state, rows, out_dir: mo_finish(
+            jax.device_get(state.repertoire), out_dir, task, "population", ctx.algorithm
+        ),
+        placement=ctx.placement,
+        state_axes=me.state_axes,
+        descriptor_space=DescriptorSpace(task.descriptor_low, task.descriptor_high, task.descriptor_names),
+        qd=QDParts(task, empty, scoring_factory(task, None)),
+    )
+
+
+_POPULATION = {"parse": _parse_population, "build": _build_population, "length_key": "qd.num_iterations"}
+NSGA2 = Recipe(**_POPULATION, description="NSGA-II (Deb et al. 2002)")  # type: ignore[arg-type]
+SPEA2 = Recipe(**_POPULATION, description="SPEA2 (Zitzler et al. 2001)")  # type: ignore[arg-type]

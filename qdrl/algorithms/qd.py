@@ -1,0 +1,788 @@
+"""The QD family's recipes: MAP-Elites with any emitter, on a grid or CVT repertoire.
+
+MAP-Elites, CVT-MAP-Elites, CMA-ME, CMA-MAE, OMG-MEGA, CMA-MEGA, CMA-MAEGA and the
+bandit pools are one recipe with different `[emitter]` kinds and repertoire
+options; PGA-ME, QD-PG, DCRL-ME, ME-ES and ME-PBT are the same recipe with the
+emitter of `qdrl.qd.emitters.qd_rl`. What differs between them is an
+`EmitterSource`: how the emitter's config is read from the spec, how many
+offspring it makes, and how the emitter is built for the task. A new QD
+algorithm is an emitter module plus one row of the table:
+
+    ALGORITHMS["my_me"] = qd_recipe(EmitterSource.of_section("my", MyConfig, make_my_emitter))
+
+Sections: `[task]`, `[repertoire]`, the emitter's (`[emitter]`, `[[emitters]]` and
+`[scheduler]`, `[pg]`, ...), `[qd]`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from qdrl import plotting
+from qdrl.agents import AGENTS
+from qdrl.algorithms.base import (
+    Algorithm,
+    BuildContext,
+    DescriptorSpace,
+    ExperimentConfig,
+    Progress,
+    QDParts,
+    Recipe,
+    Row,
+    Sections,
+    last_values,
+    scalar,
+)
+from qdrl.algorithms.task_spec import make_task_of, parse_task
+from qdrl.config import (
+    ConfigError,
+    NonNegativeInt,
+    PositiveInt,
+    Range,
+    UnitFloat,
+    build,
+    check_table,
+)
+from qdrl.lapack_threads import single_threaded_lapack
+from qdrl.pbt import search_space
+from qdrl.placement import check_divisible
+from qdrl.qd.base import Emitter, emitter_metrics
+from qdrl.qd.emitters.es import ESConfig
+from qdrl.qd.emitters.ga import GAConfig
+from qdrl.qd.emitters.me_pbt import MEPBTConfig
+from qdrl.qd.emitters.pg import PGConfig
+from qdrl.qd.emitters.qd_rl import (
+    DCRLMEConfig,
+    PGAMEConfig,
+    QDPGConfig,
+    QDRLParts,
+    make_dcrl_me,
+    make_me_es,
+    make_me_pbt,
+    make_pga_me,
+    make_qdpg,
+    with_task_reward_offset,
+)
+from qdrl.qd.emitters.registry import (
+    CMA_KINDS,
+    EMITTER_KINDS,
+    GA_KINDS,
+    EmitterContext,
+    build_emitter,
+    build_pool,
+    check_pool,
+    parse_emitter,
+    uses_cma_es,
+)
+from qdrl.qd.emitters.scheduler import SchedulerConfig
+from qdrl.qd.map_elites import MapElites, qd_state_axes
+from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
+from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, write_csv
+from qdrl.qd.repertoires.cvt import cvt_centroids
+from qdrl.tasks import TASKS, Task
+
+__all__ = [
+    "QD_PROGRESS",
+    "Container",
+    "EmitterFamily",
+    "EmitterPool",
+    "EmitterSource",
+    "QDConfig",
+    "RepertoireConfig",
+    "qd_recipe",
+]
+
+# The start value of CMA-MAE's thresholds: any number, or -inf (a cell's threshold is then its elite's fitness).
+ThresholdMin = Annotated[float, Range(high=math.inf, high_open=True, finite=False)]
+
+
+@dataclasses.dataclass(frozen=True)
+class RepertoireConfig:
+    """The `[repertoire]` section: the container of elites."""
+
+    kind: Literal["grid", "cvt"] = "grid"  # regular grid (direct indexing) or CVT
+    grid_shape: tuple[PositiveInt, ...] = (32, 32)  # grid: cells per descriptor dimension
+    num_centroids: PositiveInt = 1024  # cvt: number of cells
+    cvt_samples: PositiveInt = 50_000  # cvt: uniform samples clustered by k-means into centroids
+    kmeans_iters: PositiveInt = 50  # cvt: at most this many Lloyd iterations (after k-means++ seeding)
+    # CMA-MAE's archive learning rate alpha (Fontaine & Nikolaidis 2023): thresholds apart
+    # from the elites move towards accepted fitnesses; 1 with threshold_min = -inf: plain MAP-Elites.
+    learning_rate: UnitFloat = 1.0
+    threshold_min: ThresholdMin = -math.inf  # the thresholds' start value (CMA-MAE: the lowest fitness)
+
+    def check(self) -> None:
+        if not self.grid_shape:
+            raise ValueError("repertoire.grid_shape: expected a list of positive integers, got []")
+        if self.kind == "cvt" and self.cvt_samples < self.num_centroids:
+            raise ValueError(
+                f"repertoire.cvt_samples: expected at least repertoire.num_centroids="
+                f"{self.num_centroids}, got {self.cvt_samples}"
+            )
+        if self.threshold_min == -math.inf and self.learning_rate < 1.0:
+            raise ValueError(
+                "repertoire.threshold_min: expected a finite number when repertoire.learning_rate "
+                f"< 1 (CMA-MAE), got {self.threshold_min}"
+            )
+
+    @property
+    def annealed(self) -> bool:
+        """Whether the repertoire keeps CMA-MAE's thresholds (not plain MAP-Elites)."""
+        return self.learning_rate < 1.0 or self.threshold_min > -math.inf
+
+
+@dataclasses.dataclass(frozen=True)
+class QDConfig:
+    """The `[qd]` section: length of the run and logging."""
+
+    num_iterations: PositiveInt = 1000  # emitter batches evaluated after the initial population
+    log_every: PositiveInt = 50  # iterations between log points (one compiled chunk)
+    init_batch_size: PositiveInt = 1024  # random genotypes evaluated to seed the repertoire
+    # "task": the task's random genotypes; "zeros": genotypes of zeros (x0 = 0 of the
+    # CMA-ME, CMA-MAE and DQD papers' CMA runs: every search starts at the origin).
+    initial_genotypes: Literal["task", "zeros"] = "task"
+    # At the end, re-score every elite this many times from random start states and
+    # report corrected metrics (Flageat & Cully 2023; `qdrl reevaluate`); 0: off.
+    reevaluate_samples: NonNegativeInt = 0
+
+    def check(self) -> None:
+        if self.num_iterations % self.log_every:
+            raise ValueError(
+                f"qd.num_iterations: expected a multiple of qd.log_every={self.log_every}, "
+                f"got {self.num_iterations}"
+            )
+
+
+QD_PROGRESS = ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "evaluations_per_s")
+# The QD metrics of every log row, as the last iteration of a chunk left them.
+QD_METRICS = ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "mean_fitness", "num_elites")
+
+
+# -- where a QD algorithm's emitter comes from --
+
+
+def _same(config: Any, task: Task) -> Any:
+    del task
+    return config
+
+
+def _no_check(config: Any, task: Mapping[str, Any], qd: QDConfig) -> None:
+    del config, task, qd
+
+
+def _no_cma_es(config: Any) -> bool:
+    del config
+    return False
+
+
+@dataclasses.dataclass(frozen=True)
+class EmitterSource:
+    """How a QD algorithm's emitter comes from its spec: one row of the QD family.
+
+    `parse(spec, experiment)` reads the emitter's sections into its checked config (errors name
+    `section.key`); the config's `offspring` is the batch evaluated each iteration
+    (set by the spec key `where`; each device rolls out its share, a policy task's
+    `eval_batch`). `tables(config)` are the sections the resolved spec writes, and
+    `config_of(sections)` reads the config back from them.
+    `check(config, task, qd)` refuses what the emitter cannot do with the resolved
+    `[task]` table and `[qd]` (a replay buffer too small for a batch of episodes);
+    `resolve(config, task)` completes it from the built task (DCRL-ME's reward offset);
+    `build(config, task, context)` makes the emitter and what the loop scores.
+    """
+
+    parse: Callable[[Mapping[str, Any], ExperimentConfig], Any]
+    where: str
+    tables: Callable[[Any], Sections]
+    config_of: Callable[[Sections], Any]
+    build: Callable[[Any, Task, BuildContext], QDRLParts]
+    resolve: Callable[[Any, Task], Any] = _same
+    check: Callable[[Any, Mapping[str, Any], QDConfig], None] = _no_check
+    uses_cma_es: Callable[[Any], bool] = _no_cma_es
+    progress_keys: tuple[str, ...] = QD_PROGRESS
+    # The row after the QD loop's (ME-PBT counts its training steps as environment steps).
+    adjust_row: Callable[[Row], Row] | None = None
+    summary: Callable[[Any], dict[str, Any]] | None = None  # extra summary fields
+    default_repertoire: Literal["grid", "cvt"] = "cvt"
+
+    @classmethod
+    def of_section(
+        cls, section: str, config: type[Any], make: Callable[[Task, Any], Emitter], **options: Any
+    ) -> EmitterSource:
+        """The source of an emitter whose config is one spec section (`[section]`, parsed into
+        dataclass `config`, whose `offspring` the emitter makes each iteration) and which
+        `make(task, config)` builds for the task's own genotypes and scoring."""
+        def build_parts(cfg: Any, task: Task, ctx: BuildContext) -> QDRLParts:
+            del ctx
+            emitter = make(task, cfg)
+            return QDRLParts(emitter, task.init_genotypes, task.scoring_fn, task.example_genotype())
+
+        return cls(
+            parse=lambda spec, exp: build(config, spec.get(section, {}), section),
+            where=f"{section}.batch_size",
+            tables=lambda cfg: {section: cfg},
+            config_of=lambda sections: sections[section],
+            build=build_parts,
+            **options,
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class EmitterFamily:
+    """What a QD algorithm name means for its emitters and repertoire: defaults and allowed kinds.
+
+    `emitter`: the default `[emitter]` table (its `kind` and the values the
+    algorithm sets, under the spec's keys); `kinds`: the kinds its `[emitter]` or
+    `[[emitters]]` may name (None: all); `pool`: whether `[[emitters]]` is accepted;
+    `repertoire`: defaults of `[repertoire]` (CMA-MAE's learning rate).
+    """
+
+    emitter: Mapping[str, Any] = dataclasses.field(default_factory=lambda: {"kind": "isoline"})
+    kinds: tuple[str, ...] | None = None
+    pool: bool = True
+    repertoire: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
+class EmitterPool:
+    """A bandit pool of emitters (`[[emitters]]` and `[scheduler]`)."""
+
+    emitters: tuple[Any, ...]
+    scheduler: SchedulerConfig
+
+    @property
+    def offspring(self) -> int:
+        return self.scheduler.num_active * self.emitters[0].instance_size
+
+
+def _registry_configs(config: Any) -> list[tuple[Any, str]]:
+    """(config, section) of a registry emitter or of each member of a pool."""
+    if isinstance(config, EmitterPool):
+        return [(c, f"emitters[{i}]") for i, c in enumerate(config.emitters)]
+    return [(config, "emitter")]
+
+
+def _parse_registry(spec: Mapping[str, Any], family: EmitterFamily) -> Any:
+    default = dict(family.emitter)
+    kind = str(default.pop("kind"))
+
+    def emitter_of(data: Any, section: str) -> Any:
+        return parse_emitter(data, section, kind, family.kinds, default)
+
+    if "emitters" not in spec:
+        return emitter_of(spec.get("emitter", {}), "emitter")
+    if not family.pool:
+        raise ConfigError("emitters: this algorithm takes one [emitter], not a pool of [[emitters]]")
+    if "emitter" in spec:
+        raise ConfigError("emitter: give either one [emitter] or a pool of [[emitters]], not both")
+    tables = spec["emitters"]
+    if not (isinstance(tables, list) and tables and all(isinstance(t, Mapping) for t in tables)):
+        raise ConfigError(
+            "emitters: expected a list of tables ([[emitters]] followed by key = value lines), "
+            f"got {tables!r}"
+        )
+    pool = tuple(emitter_of(t, f"emitters[{i}]") for i, t in enumerate(tables))
+    scheduler = build(SchedulerConfig, spec.get("scheduler", {}), "scheduler")
+    check_pool(pool, scheduler)
+    return EmitterPool(pool, scheduler)
+
+
+def _build_registry(config: Any, task: Task, ctx: BuildContext) -> QDRLParts:
+    del ctx
+    context = EmitterContext.of_task(task)
+    if isinstance(config, EmitterPool):
+        emitter = build_pool(config.emitters, config.scheduler, context)
+    else:
+        emitter = build_emitter(config, context)
+    # OMG-MEGA reads every offspring's gradients: the loop evaluates with the task's gradients.
+    scoring = task.scoring_fn
+    if any(EMITTER_KINDS[c.kind].gradients == "scoring" for c, _ in _registry_configs(config)):
+        assert task.gradient_scoring_fn is not None, "checked by _check_registry"
+        scoring = task.gradient_scoring_fn
+    return QDRLParts(emitter, task.init_genotypes, scoring, task.example_genotype())
+
+
+def registry_source(family: EmitterFamily = EmitterFamily(), default_repertoire: Literal["grid", "cvt"] = "grid") -> EmitterSource:
+    """The emitters of the registry (`qdrl.qd.emitters.registry`): one `[emitter]` of the
+    family's kinds, or a bandit pool of `[[emitters]]` under `[scheduler]`."""
+    return EmitterSource(
+        parse=lambda spec, exp: _parse_registry(spec, family),
+        where="emitter.batch_size",
+        tables=lambda c: (
+            {"emitters": c.emitters, "scheduler": c.scheduler} if isinstance(c, EmitterPool) else {"emitter": c}
+        ),
+        config_of=lambda s: EmitterPool(s["emitters"], s["scheduler"]) if "emitters" in s else s["emitter"],
+        build=_build_registry,
+        uses_cma_es=lambda c: uses_cma_es([x for x, _ in _registry_configs(c)]),
+        default_repertoire=default_repertoire,
+    )
+
+
+# -- the QD-RL rows --
+
+
+def _parse_ga(spec: Mapping[str, Any]) -> GAConfig:
+    config: GAConfig = parse_emitter(spec.get("emitter", {}), "emitter", "isoline", GA_KINDS)
+    return config
+
+
+def _check_replay_buffer(section: str, capacity: int, batch: int, task: Mapping[str, Any], qd: QDConfig) -> None:
+    """Refuses a replay buffer that one evaluated batch of episodes of a policy task does not fit in."""
+    if not TASKS[task["name"]].policy:
+        return
+    steps = int(task["episode_length"])
+    for name, n in (("emitter.batch_size", batch), ("qd.init_batch_size", qd.init_batch_size)):
+        if steps * n > capacity:
+            raise ConfigError(
+                f"{section}.replay_buffer_size: expected at least {name} x task.episode_length = "
+                f"{steps * n}, got {capacity}"
+            )
+
+
+def _policy_parts(make: Callable[[Task, Any], QDRLParts]) -> Callable[[Any, Task, BuildContext], QDRLParts]:
+    def build_parts(config: Any, task: Task, ctx: BuildContext) -> QDRLParts:
+        del ctx
+        try:
+            return make(task, config)
+        except ValueError as e:
+            raise ConfigError(str(e)) from e
+
+    return build_parts
+
+
+def _parse_pga_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> PGAMEConfig:
+    config: PGAMEConfig = build(PGAMEConfig, spec.get("pg", {}), "pg")
+    return dataclasses.replace(config, ga=_parse_ga(spec))
+
+
+PGA_ME = EmitterSource(
+    parse=_parse_pga_me,
+    where="emitter.batch_size",
+    tables=lambda c: {"emitter": c.ga, "pg": c},
+    config_of=lambda s: s["pg"],
+    build=_policy_parts(make_pga_me),
+    check=lambda c, task, qd: _check_replay_buffer("pg", c.pg.replay_buffer_size, c.offspring, task, qd),
+    progress_keys=(*QD_PROGRESS, "critic_steps"),
+)
+
+
+def _parse_qdpg(spec: Mapping[str, Any], exp: ExperimentConfig) -> QDPGConfig:
+    config: QDPGConfig = build(QDPGConfig, spec.get("dpg", {}), "dpg")
+    pg = build(PGConfig, spec.get("pg", {}), "pg")
+    return dataclasses.replace(config, pg=pg, ga=_parse_ga(spec))
+
+
+QDPG = dataclasses.replace(
+    PGA_ME,
+    parse=_parse_qdpg,
+    tables=lambda c: {"emitter": c.ga, "pg": c.pg, "dpg": c},
+    config_of=lambda s: s["dpg"],
+    build=_policy_parts(make_qdpg),
+)
+
+
+def _parse_dcrl_me(spec: Mapping[str, Any], exp: ExperimentConfig) -> DCRLMEConfig:
+    config: DCRLMEConfig = build(DCRLMEConfig, spec.get("dcrl", {}), "dcrl")
+    config = dataclasses.replace(config, ga=_parse_ga(spec))
+    if config.dcrl_batch_size + config.ai_batch_size >= config.offspring:
+        raise ConfigError(
+            f"dcrl.dcrl_batch_size: expected dcrl.dcrl_batch_size + dcrl.ai_batch_size below "
+            f"emitter.batch_size={config.offspring} (the GA makes the rest), got "
+            f"{config.dcrl_batch_size} + {config.ai_batch_size}"
+        )
+    return config
+
+
+DCRL_ME = dataclasses.replace(
+    PGA_ME,
+    parse=_parse_dcrl_me,
+    tables=lambda c: {"emitter": c.ga, "dcrl": c},
+    config_of=lambda s: s["dcrl"],
+    build=_policy_parts(make_dcrl_me),
+    resolve=with_task_reward_offset,
+    check=lambda c, task, qd: _check_replay_buffer("dcrl", c.dcrl.replay_buffer_size, c.offspring, task, qd),
+)
+
+
+def _parse_me_es(spec: Mapping[str, Any], exp: ExperimentConfig) -> ESConfig:
+    if "emitter" in spec:
+        raise ConfigError("emitter: ME-ES has no GA emitter; its settings are in [es]")
+    config: ESConfig = build(ESConfig, spec.get("es", {}), "es")
+    return config
+
+
+ME_ES = EmitterSource(
+    parse=_parse_me_es,
+    where="es.population_size (+ 1, the parent)",
+    tables=lambda c: {"es": c},
+    config_of=lambda s: s["es"],
+    build=_policy_parts(make_me_es),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class _MEPBT:
+    """ME-PBT's emitter config: `[me_pbt]` and the `[agent]` settings PBT does not tune."""
+
+    me_pbt: MEPBTConfig
+    agent: Any
+    agent_name: str
+
+    @property
+    def offspring(self) -> int:
+        return self.me_pbt.offspring
+
+
+def _parse_me_pbt(spec: Mapping[str, Any], exp: ExperimentConfig, agent_name: str) -> _MEPBT:
+    if "emitter" in spec:
+        raise ConfigError("emitter: ME-PBT takes no [emitter] section; its GA settings are in [me_pbt]")
+    me_cfg = build(MEPBTConfig, spec.get("me_pbt", {}), "me_pbt")
+    config_cls, _ = AGENTS[agent_name]
+    agent_cfg = build(config_cls, spec.get("agent", {}), "agent")
+    try:
+        search_space(agent_name, me_cfg.pbt_config(), agent_cfg.hparams(), "me_pbt")
+    except ValueError as e:
+        raise ConfigError(str(e)) from e
+    check_divisible(me_cfg.population_size, exp.num_devices, "me_pbt.population_size")
+    return _MEPBT(me_cfg, agent_cfg, agent_name)
+
+
+def _build_me_pbt(config: _MEPBT, task: Task, ctx: BuildContext) -> QDRLParts:
+    _, make_agent = AGENTS[config.agent_name]
+    if task.env is None:
+        raise ConfigError(
+            f"task.name: ME-PBT needs a policy task with an environment (e.g. ant_uni, "
+            f"halfcheetah_uni, point_maze), got {task.name!r}"
+        )
+    try:
+        agent = make_agent(config.agent, task.env.observation_size, task.env.action_size)
+    except ValueError as e:
+        raise ConfigError(f"agent: {e}") from e
+    try:
+        return make_me_pbt(task, agent, config.agent_name, config.me_pbt, placement=ctx.placement)
+    except ValueError as e:
+        raise ConfigError(str(e)) from e
+
+
+def _check_me_pbt(config: _MEPBT, task: Mapping[str, Any], qd: QDConfig) -> None:
+    del task
+    if qd.init_batch_size < config.me_pbt.population_size:
+        raise ConfigError(
+            f"qd.init_batch_size: expected at least me_pbt.population_size="
+            f"{config.me_pbt.population_size}, got {qd.init_batch_size}"
+        )
+
+
+def _me_pbt_row(row: Row) -> Row:
+    """The row of the QD loop, with the population's training steps counted as env steps."""
+    row["eval_env_steps"] = row["env_steps"]
+    row["env_steps"] = row["eval_env_steps"] + row["train_env_steps"]
+    return row
+
+
+def me_pbt_source(agent_name: str) -> EmitterSource:
+    """ME-PBT's emitter of `agent_name` ("sac" or "td3") agents."""
+    return EmitterSource(
+        parse=lambda spec, exp: _parse_me_pbt(spec, exp, agent_name),
+        where="me_pbt.ga_batch_size (+ me_pbt.population_size)",
+        tables=lambda c: {"agent": c.agent, "me_pbt": c.me_pbt},
+        config_of=lambda s: _MEPBT(s["me_pbt"], s["agent"], agent_name),
+        build=_build_me_pbt,
+        check=_check_me_pbt,
+        progress_keys=("qd_score", "normalised_qd_score", "coverage", "max_fitness", "population_best"),
+        adjust_row=_me_pbt_row,
+        summary=lambda c: {"population_size": c.me_pbt.population_size},
+    )
+
+
+# -- what a QD run stores its elites in --
+
+
+@dataclasses.dataclass(frozen=True)
+class Container:
+    """A container of elites other than one elite per cell (MOME's Pareto front per cell).
+
+    `parse(spec, sections, experiment)` checks the container's own sections (and what
+    it needs of the others, e.g. the task's objectives) and returns them;
+    `wrap(cells, sections, task, example)` is the empty container on the repertoire's
+    cells; `metrics(task)` the QD loop's metrics function; `log_row(state, metrics,
+    task)` and `finish(repertoire, out_dir, task, algorithm)` replace the plain ones.
+    """
+
+    parse: Callable[[Mapping[str, Any], Sections, ExperimentConfig], Sections]
+    wrap: Callable[[Any, Sections, Task, Any], Any]
+    metrics: Callable[[Task], Callable[[Any, float], dict[str, Any]]]
+    log_row: Callable[[Any, Any, Task], Row]
+    finish: Callable[[Any, Path, Task, str], dict[str, Any]]
+    progress_keys: tuple[str, ...]
+
+
+# -- parsing and building a QD run --
+
+
+def parse_repertoire(spec: Mapping[str, Any], default_kind: str, defaults: Mapping[str, Any]) -> RepertoireConfig:
+    """The checked `[repertoire]` section, over the algorithm's defaults."""
+    data = {**defaults, **check_table(spec.get("repertoire", {}), "repertoire")}
+    data.setdefault("kind", default_kind)
+    config: RepertoireConfig = build(RepertoireConfig, data, "repertoire")
+    return config
+
+
+def parse_task_and_qd(
+    spec: Mapping[str, Any], exp: ExperimentConfig, offspring: int, where: str, default_task: str = "arm",
+    qd_defaults: Mapping[str, Any] | None = None,
+) -> tuple[dict[str, Any], QDConfig]:
+    """The resolved `[task]` and checked `[qd]` of a QD spec whose emitters make `offspring`
+    per iteration: each of the `experiment.devices` rolls out its share of them at once (a
+    policy task's default `eval_batch`), so they, and the initial batch, must divide by it."""
+    devices = exp.num_devices
+    qd_data = {**(qd_defaults or {}), **check_table(spec.get("qd", {}), "qd")}
+    qd: QDConfig = build(QDConfig, qd_data, "qd")
+    check_divisible(offspring, devices, where)
+    check_divisible(qd.init_batch_size, devices, "qd.init_batch_size")
+    task = parse_task(spec.get("task", {"name": default_task}), {"eval_batch": offspring // devices})
+    return task, qd
+
+
+def _parse(
+    spec: Mapping[str, Any], exp: ExperimentConfig, source: EmitterSource, repertoire_defaults: Mapping[str, Any],
+    container: Container | None = None,
+) -> Sections:
+    repertoire = parse_repertoire(spec, source.default_repertoire, repertoire_defaults)
+    config = source.parse(spec, exp)
+    where = "emitters" if isinstance(config, EmitterPool) else source.where
+    task, qd = parse_task_and_qd(spec, exp, config.offspring, where)
+    source.check(config, task, qd)
+    tables = source.tables(config)
+    order = [k for k in tables if k in ("emitter", "emitters", "scheduler")]
+    sections = {
+        "task": task, "repertoire": repertoire, **{k: tables[k] for k in order}, "qd": qd,
+        **{k: v for k, v in tables.items() if k not in order},
+    }
+    return sections if container is None else {**sections, **container.parse(spec, sections, exp)}
+
+
+def check_repertoire(repertoire: RepertoireConfig, task: Task) -> None:
+    """Refuses a grid of another dimension than the task's descriptor."""
+    dim = task.descriptor_size
+    if repertoire.kind == "grid" and len(repertoire.grid_shape) != dim:
+        raise ConfigError(
+            f"repertoire.grid_shape: expected {dim} entries (the descriptor size of task "
+            f"{task.name!r}), got {list(repertoire.grid_shape)}"
+        )
+
+
+def make_repertoire(config: RepertoireConfig, task: Task, example: Any, key: jax.Array | None, centroids: Any = None) -> Any:
+    """The empty repertoire of `[repertoire]` for `task`'s descriptors and genotypes `example`; a
+    CVT's cells are `centroids`, or come from k-means seeded by `key`."""
+    if config.kind == "grid":
+        rep = grid_repertoire(example, config.grid_shape, task.descriptor_low, task.descriptor_high)
+    else:
+        if centroids is None:
+            if key is None:
+                raise ValueError("make_repertoire: a CVT repertoire needs a key or centroids")
+            centroids = cvt_centroids(
+                key, config.num_centroids, config.cvt_samples, task.descriptor_low, task.descriptor_high,
+                num_iters=config.kmeans_iters,
+            )
+        rep = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
+    return rep.with_learning_rate(config.learning_rate, config.threshold_min) if config.annealed else rep
+
+
+def initial_genotypes(qd: QDConfig, parts: QDRLParts) -> Callable[[jax.Array], Any]:
+    """The initial population of `qd.init_batch_size` genotypes drawn from a key."""
+    n = qd.init_batch_size
+    if qd.initial_genotypes == "zeros":
+        example = parts.example_genotype
+        return lambda key: jax.tree.map(lambda x: jnp.zeros((n, *x.shape), x.dtype), example)
+    return lambda key: parts.init_genotypes(key, n)
+
+
+def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
+    """The row of a QD chunk: counters, the last iteration's QD metrics, offspring accepted
+    per iteration, and what the emitter reports of its state (critic steps, restarts)."""
+    m = jax.device_get(metrics)
+    row: Row = {
+        "iteration": int(state.iteration),
+        "evaluations": int(state.evaluations),
+        "env_steps": int(state.env_steps),
+    }
+    row.update(last_values(m, QD_METRICS))
+    row["added_per_iter"] = float(np.mean(m["added"]))
+    row.update({k: scalar(v) for k, v in jax.device_get(emitter_metrics(emitter, state.emitter_state)).items()})
+    return row
+
+
+def scoring_factory(task: Task, policy: Any) -> Callable[..., Any]:
+    """(fixed_start=True, record=None) -> the task's scoring of genotypes acting by `policy`
+    (None: the task's own policy network); random start states and recorded env states need
+    a policy task (other tasks have one scoring function, whatever their key draws)."""
+
+    def scoring(fixed_start: bool = True, record: Any = None) -> Any:
+        if task.policy_scoring is None or (policy is None and fixed_start and record is None):
+            return task.scoring_fn
+        return task.policy_scoring(policy, fixed_start=fixed_start, record=record)
+
+    return scoring
+
+
+def write_repertoire(rep: Any, out_dir: Path, task: Task, title: str) -> None:
+    """A QD run's final repertoire: repertoire.npz, repertoire.csv and plots/repertoire.png."""
+    export_npz(rep, out_dir / "repertoire.npz")
+    write_csv(rep, out_dir / "repertoire.csv")
+    plotting.plot_repertoire(
+        rep, out_dir / "plots" / "repertoire.png", task.descriptor_low, task.descriptor_high,
+        title=title, labels=task.descriptor_names,
+    )
+
+
+def reevaluated(
+    qd: QDConfig, parts: QDParts, rep: Any, out_dir: Path, seed: int, labels: dict[str, Any]
+) -> dict[str, Any]:
+    """`qd.reevaluate_samples` > 0: corrected metrics into reevaluation.json and the summary."""
+    n = qd.reevaluate_samples
+    if n == 0:
+        return {}
+    task = parts.task
+    report = reevaluation_report(
+        rep, parts.scoring(fixed_start=False), task.qd_offset, n, seed, labels,
+        random_starts=task.policy_scoring is not None,
+    )
+    write_reevaluation(report, out_dir)
+    return {f"corrected_{k}": v for k, v in report["corrected"].items()} | {"reevaluate_samples": n}
+
+
+def _build(
+    sections: Sections, ctx: BuildContext, source: EmitterSource, container: Container | None = None
+) -> Algorithm:
+    task = make_task_of(sections["task"])
+    rep_cfg: RepertoireConfig = sections["repertoire"]
+    qd: QDConfig = sections["qd"]
+    check_repertoire(rep_cfg, task)
+    config = source.resolve(source.config_of(sections), task)
+    parts = source.build(config, task, ctx)
+    cvt_key = jax.random.split(jax.random.PRNGKey(ctx.seed), 3)[0]
+    lapack = single_threaded_lapack if source.uses_cma_es(config) else None
+
+    def empty(key: jax.Array | None, centroids: Any) -> Any:
+        cells = make_repertoire(rep_cfg, task, parts.example_genotype, key, centroids)
+        return cells if container is None else container.wrap(cells, sections, task, parts.example_genotype)
+
+    @functools.cache
+    def map_elites() -> MapElites:
+        """The loop, on the repertoire's cells; a CVT's are computed (k-means, on the host) when
+        the state is first made or traced, not when the run is built (`--check`, `load_run`)."""
+        with jax.ensure_compile_time_eval(), (lapack or contextlib.nullcontext)():
+            repertoire = empty(cvt_key, ctx.centroids)
+        options = {} if container is None else {"metrics_fn": container.metrics(task)}
+        return MapElites(
+            parts.scoring_fn, parts.emitter, repertoire, qd_offset=task.qd_offset, placement=ctx.placement,
+            **options,
+        )
+
+    genotypes = initial_genotypes(qd, parts)
+    qd_parts = QDParts(task, lambda centroids: empty(None, centroids), scoring_factory(task, parts.policy))
+    title = f"{ctx.algorithm} on {task.name}"
+
+    def init(key: jax.Array) -> Any:
+        _, init_key, run_key = jax.random.split(key, 3)
+        return map_elites().init(genotypes(init_key), run_key)
+
+    def log_row(state: Any, metrics: Any) -> Row:
+        if container is not None:
+            return container.log_row(state, metrics, task)
+        row = qd_log_row(state, metrics, parts.emitter)
+        return source.adjust_row(row) if source.adjust_row is not None else row
+
+    def finish(state: Any, rows: list[Row], out_dir: Path) -> dict[str, Any]:
+        del rows
+        rep = jax.device_get(state.repertoire)
+        if container is not None:
+            return container.finish(rep, out_dir, task, ctx.algorithm)
+        write_repertoire(rep, out_dir, task, title)
+        extra = source.summary(config) if source.summary is not None else {}
+        labels = {"algorithm": ctx.algorithm, "task": task.name}
+        return {"qd_offset": task.qd_offset, **reevaluated(qd, qd_parts, rep, out_dir, ctx.seed, labels), **extra}
+
+    resolved = {**sections, **source.tables(config)}
+    return Algorithm(
+        task=task.name,
+        sections=resolved,
+        num_chunks=qd.num_iterations // qd.log_every,
+        progress=Progress(
+            source.progress_keys if container is None else container.progress_keys, "iteration", qd.num_iterations
+        ),
+        init=init,
+        chunk=lambda state: map_elites().run(state, qd.log_every),
+        log_row=log_row,
+        finish=finish,
+        placement=ctx.placement,
+        state_axes=qd_state_axes(parts.emitter),
+        run_context=lapack,
+        descriptor_space=DescriptorSpace(task.descriptor_low, task.descriptor_high, task.descriptor_names),
+        qd=qd_parts,
+    )
+
+
+def qd_recipe(
+    source: EmitterSource,
+    repertoire: Mapping[str, Any] | None = None,
+    description: str = "",
+    container: Container | None = None,
+) -> Recipe:
+    """The recipe of MAP-Elites with the emitter of `source` (`repertoire`: defaults of
+    `[repertoire]`, e.g. CMA-MAE's learning rate; `container`: another container than
+    one elite per cell)."""
+    defaults = dict(repertoire or {})
+    return Recipe(
+        parse=lambda spec, exp: _parse(spec, exp, source, defaults, container),
+        build=lambda sections, ctx: _build(sections, ctx, source, container),
+        length_key="qd.num_iterations",
+        description=description,
+        array_sections=("emitters",),
+    )
+
+
+_MAE = {"learning_rate": 0.01, "threshold_min": 0.0}
+MAP_ELITES = qd_recipe(registry_source(), description="MAP-Elites (Mouret & Clune 2015) with any emitter")
+CVT_MAP_ELITES = qd_recipe(
+    registry_source(default_repertoire="cvt"), description="CVT-MAP-Elites (Vassiliades et al. 2018)"
+)
+CMA_ME = qd_recipe(
+    registry_source(EmitterFamily({"kind": "cma_improvement"}, CMA_KINDS)),
+    description="CMA-ME (Fontaine et al. 2020)",
+)
+CMA_MAE = qd_recipe(
+    registry_source(EmitterFamily(
+        {"kind": "cma_improvement", "ranker": "imp", "selection_rule": "mu", "restart_rule": "basic"}, CMA_KINDS,
+    )),
+    repertoire=_MAE,
+    description="CMA-MAE (Fontaine & Nikolaidis 2023)",
+)
+OMG_MEGA = qd_recipe(
+    registry_source(EmitterFamily({"kind": "omg_mega"}, ("omg_mega",), pool=False)),
+    description="OMG-MEGA (Fontaine & Nikolaidis 2021)",
+)
+CMA_MEGA = qd_recipe(
+    registry_source(EmitterFamily({"kind": "cma_mega"}, ("cma_mega",))),
+    description="CMA-MEGA (Fontaine & Nikolaidis 2021)",
+)
+CMA_MAEGA = qd_recipe(
+    registry_source(EmitterFamily({"kind": "cma_mega", "ranker": "imp", "restart_rule": "basic"}, ("cma_mega",))),
+    repertoire=_MAE,
+    description="CMA-MAEGA (Fontaine & Nikolaidis 2023)",
+)
+PGA_ME_RECIPE = qd_recipe(PGA_ME, description="PGA-ME (Nilsson & Cully 2021)")
+QDPG_RECIPE = qd_recipe(QDPG, description="QD-PG (Pierrot et al. 2022)")
+DCRL_ME_RECIPE = qd_recipe(DCRL_ME, description="DCRL-ME (Faldor et al. 2024)")
+ME_ES_RECIPE = qd_recipe(ME_ES, description="ME-ES (Colas et al. 2020)")
+ME_PBT_SAC = qd_recipe(me_pbt_source("sac"), description="ME-PBT of SAC agents (Pierrot & Flajolet 2023)")
+ME_PBT_TD3 = qd_recipe(me_pbt_source("td3"), description="ME-PBT of TD3 agents (Pierrot & Flajolet 2023)")

@@ -1,0 +1,281 @@
+"""Skill-discovery recipes: DIAYN, DADS, and SMERL on either.
+
+A run is SAC on a skill-conditioned environment (`qdrl.agents.skill_discovery`),
+trained by the one off-policy loop with batches relabelled by the intrinsic
+reward. Each log point evaluates every skill deterministically (`train.num_eval_envs`
+episodes, skill i % K in episode i) through `run_episodes` on the task's own
+environment, offers the episodes' (descriptor, return) to the task's passive archive,
+and logs the same QD metrics as every other algorithm, plus the skill model's
+metrics on the evaluation episodes (discriminator accuracy for DIAYN,
+skill-dynamics log-likelihood for DADS), at every step and at the episodes' last step.
+
+Sections: `[env]` (a task of `SKILL_TASKS`), `[agent]` (SAC), `[train]`, `[skills]`
+(the DIAYN or DADS config), `[smerl]` (SMERL's target and margin), `[archive]`
+(defaults: the task's descriptor bounds and QD offset).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from qdrl import off_policy, plotting
+from qdrl.agents.base import AgentState
+from qdrl.agents.dads import DADSConfig
+from qdrl.agents.diayn import DIAYNConfig
+from qdrl.agents.sac import SACConfig
+from qdrl.agents.skill_discovery import make_skill_discovery
+from qdrl.agents.smerl import SMERLConfig
+from qdrl.algorithms.base import (
+    Algorithm,
+    BuildContext,
+    DescriptorSpace,
+    ExperimentConfig,
+    Progress,
+    Recipe,
+    Row,
+    Sections,
+)
+from qdrl.algorithms.rl import (
+    ArchiveConfig,
+    RLState,
+    check_train_devices,
+    eval_key,
+    rl_log_row,
+    write_archive,
+)
+from qdrl.config import ConfigError, OneOf, PositiveInt, build, check_keys, check_table
+from qdrl.envs.base import Env
+from qdrl.envs.brax import Backend
+from qdrl.envs.skills import append_skill
+from qdrl.off_policy import STATE_AXES, TrainConfig, make_trainer
+from qdrl.qd.repertoires.passive import feed
+from qdrl.rollout import run_episodes
+from qdrl.tasks import TASKS, Task
+from qdrl.types import Array, PRNGKey
+
+__all__ = ["DADS", "DIAYN", "SKILL_TASKS", "SMERL_DADS", "SMERL_DIAYN", "SkillEnvConfig", "skill_task", "skill_trainer_builder"]
+
+# The QD tasks (`qdrl.tasks`) a skill-discovery run can use: their environment,
+# reward, episode descriptor, bounds and QD offset measure skills and QD algorithms
+# on one scale.
+SKILL_TASKS: tuple[str, ...] = ("point_maze", "ant_omni", "ant_trap", "ant_maze", "halfcheetah_uni")
+SkillTaskName = Annotated[str, OneOf(lambda: SKILL_TASKS)]
+# The skill model's metric on the progress bar: its value at the evaluation episodes' last step.
+_MODEL_METRIC = {DIAYNConfig: "discriminator_accuracy", DADSConfig: "dynamics_log_likelihood"}
+
+
+@dataclasses.dataclass(frozen=True)
+class SkillEnvConfig:
+    """The `[env]` section: which task, on which physics backend (brax tasks)."""
+
+    task: SkillTaskName = "ant_omni"  # one of SKILL_TASKS
+    backend: Backend = "spring"  # brax physics pipeline (ignored by point_maze)
+    episode_length: PositiveInt = 1000  # steps before truncation
+
+
+def skill_task(name: str, episode_length: int, backend: str) -> Task:
+    """The QD task `name` at this episode length (on this physics backend where it has one)."""
+    builder = TASKS[name].build
+    params = {"episode_length": episode_length, "backend": backend}
+    accepted = inspect.signature(builder).parameters
+    return builder(**{k: v for k, v in params.items() if k in accepted})
+
+
+def parse_skills(
+    spec: Mapping[str, Any], exp: ExperimentConfig, base: Literal["diayn", "dads"], smerl: bool
+) -> Sections:
+    """The checked sections of a DIAYN / DADS (`base`) spec, SMERL on it if `smerl`.
+
+    `[archive]` stays a table of the keys the spec gives (each checked): the build
+    completes it with its task's descriptor bounds and QD offset.
+    """
+    env = build(SkillEnvConfig, spec.get("env", {}), "env")
+    agent = build(SACConfig, spec.get("agent", {}), "agent")
+    train = build(TrainConfig, spec.get("train", {}), "train")
+    check_train_devices(train, exp.num_devices)
+    skills_data = dict(check_table(spec.get("skills", {}), "skills"))
+    if smerl:
+        # SMERL optimises the task reward (weight 1 in Kumar et al. 2020, eq. 3).
+        skills_data.setdefault("extrinsic_scale", 1.0)
+    skills = build(DIAYNConfig if base == "diayn" else DADSConfig, skills_data, "skills")
+    archive = check_keys(ArchiveConfig, spec.get("archive", {}), "archive")
+    sections: Sections = {"env": env, "agent": agent, "train": train, "skills": skills, "archive": archive}
+    if smerl:
+        sections["smerl"] = build(SMERLConfig, spec.get("smerl", {}), "smerl")
+    k = skills.num_skills
+    if train.num_eval_envs % k:
+        raise ConfigError(
+            f"train.num_eval_envs: expected a multiple of skills.num_skills={k} (every "
+            f"skill is evaluated the same number of times), got {train.num_eval_envs}"
+        )
+    return sections
+
+
+def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
+    env_cfg: SkillEnvConfig = sections["env"]
+    train_cfg: TrainConfig = sections["train"]
+    skills_cfg: DIAYNConfig | DADSConfig = sections["skills"]
+    task = skill_task(env_cfg.task, env_cfg.episode_length, env_cfg.backend)
+    archive_defaults = {
+        "descriptor": task.episode_descriptor,
+        "low": list(task.descriptor_low),
+        "high": list(task.descriptor_high),
+        "qd_offset": task.qd_offset,
+    }
+    archive_cfg = build(ArchiveConfig, {**archive_defaults, **sections["archive"]}, "archive")
+    base_env: Env = task.env
+    archive_cfg.check_size(base_env.descriptor_size, env_cfg.task)
+    try:
+        sd = make_skill_discovery(base_env, sections["agent"], skills_cfg, sections.get("smerl"))
+    except ValueError as e:
+        msg = str(e)
+        raise ConfigError(msg if msg.startswith("skills.") else f"agent: {msg}") from e
+    trainer = make_trainer(sd.env, sd.agent, train_cfg, sd.storage, placement=ctx.placement)
+    k, num_eval = skills_cfg.num_skills, train_cfg.num_eval_envs
+    key0 = eval_key(ctx.seed)
+    labels = tuple(task.descriptor_names)
+    title = f"{ctx.algorithm} on {env_cfg.task}"
+    metric = _MODEL_METRIC[type(skills_cfg)]
+
+    def evaluate(agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
+        """Episode i plays skill i % K deterministically; returns metrics and the trajectories."""
+        params = sd.agent.policy_params(agent_state)
+        skills = jnp.arange(num_eval, dtype=jnp.int32) % k
+        run_key, model_key = jax.random.split(key)
+
+        def policy(obs: Array, _: PRNGKey) -> Array:
+            return sd.agent.policy(params, append_skill(obs, skills, k))
+
+        ep = run_episodes(base_env, policy, run_key, num_eval)
+        desc = ep.final_desc if archive_cfg.descriptor == "final" else ep.mean_desc
+        desc = jnp.clip(desc, jnp.asarray(archive_cfg.low), jnp.asarray(archive_cfg.high))
+        # The skill model's metrics on the evaluation steps, as the training batches see them.
+        tr = ep.transitions
+        steps = tr.obs.shape[0]
+        per_step = jnp.broadcast_to(skills, (steps, num_eval))
+        tr = tr._replace(obs=append_skill(tr.obs, per_step, k), next_obs=append_skill(tr.next_obs, per_step, k))
+        flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), tr)
+        _, info = sd.module.reward(agent_state.aux, flat, model_key)
+        mask = ep.mask
+        last = jax.nn.one_hot(ep.lengths - 1, steps, axis=0) * mask  # (T, B) the last step
+        out: dict[str, Array] = {
+            "eval_return": jnp.mean(ep.returns),
+            "eval_return_std": jnp.std(ep.returns),
+            "eval_return_min": jnp.min(ep.returns),
+            "eval_length": jnp.mean(ep.lengths.astype(jnp.float32)),
+            "returns": ep.returns,
+            "descriptors": desc,
+            "trajectories": tr.next_desc,
+            "mask": mask,
+        }
+        for name, value in info.items():
+            v = value.reshape(mask.shape)
+            out[f"eval_{name}"] = jnp.sum(v * mask) / jnp.sum(mask)
+            out[f"eval_final_{name}"] = jnp.sum(v * last) / jnp.sum(last)
+        return out
+
+    def init(key: jax.Array) -> RLState:
+        return RLState(trainer.init(key), archive_cfg.empty())
+
+    def chunk(state: RLState) -> tuple[RLState, dict[str, Any]]:
+        """Train for one log interval, evaluate every skill, and offer the episodes to the archive."""
+        train, metrics = trainer.run_chunk(state.train)
+        ev = evaluate(train.agent, jax.random.fold_in(key0, train.env_steps))
+        archive, qd = feed(state.archive, ev.pop("descriptors"), ev.pop("returns"), archive_cfg.qd_offset)
+        out = dict(metrics)
+        out.update(ev)
+        out.update(qd)
+        return RLState(train, archive), out
+
+    # The latest evaluation's trajectories (host arrays), for the skills plot at the end.
+    last_eval: dict[str, Any] = {}
+
+    def log_row(state: RLState, metrics: Any) -> Row:
+        metrics = dict(metrics)
+        last_eval.update(jax.device_get({k: metrics.pop(k) for k in ("trajectories", "mask") if k in metrics}))
+        counters = {"env_steps": int(state.train.env_steps), "grad_steps": int(state.train.grad_steps)}
+        return rl_log_row(counters, metrics)
+
+    def finish(state: RLState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
+        del rows
+        write_archive(state.archive, archive_cfg, labels, out_dir, title)
+        ev = last_eval
+        if not ev:  # a resumed run with no chunk left: evaluate once more
+            ev = jax.device_get(jax.jit(evaluate)(state.train.agent, jax.random.fold_in(key0, 0xF1)))
+        plotting.plot_skills(
+            np.asarray(ev["trajectories"]),
+            np.arange(num_eval) % k,
+            np.asarray(ev["mask"]),
+            out_dir / "plots" / "skills.png",
+            archive_cfg.low,
+            archive_cfg.high,
+            archive=jax.device_get(state.archive),
+            title=f"{title}: skills and passive archive",
+            trajectories_are_positions=archive_cfg.descriptor == "final",
+            walls=plotting.env_walls(base_env),
+            labels=labels,
+        )
+        return {"grad_steps": int(np.asarray(state.train.grad_steps))}
+
+    return Algorithm(
+        task=env_cfg.task,
+        sections={**sections, "archive": archive_cfg},
+        num_chunks=train_cfg.num_chunks,
+        progress=Progress(
+            ("eval_return", "coverage", f"eval_final_{metric}"), "env_steps", train_cfg.num_chunks * train_cfg.eval_every
+        ),
+        init=init,
+        chunk=chunk,
+        log_row=log_row,
+        finish=finish,
+        placement=ctx.placement,
+        state_axes=RLState(STATE_AXES, None),  # type: ignore[arg-type]
+        descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),
+    )
+
+
+def skill_trainer_builder(
+    algorithm: str,
+    hidden: tuple[int, ...] = (256, 256),
+    num_skills: int = 10,
+    smerl: SMERLConfig | None = None,
+) -> Callable[[Env, TrainConfig], off_policy.Trainer]:
+    """`(env, train_config) -> Trainer` of a skill-discovery `algorithm` with default settings.
+
+    SAC and the skill model both use `hidden`; for the throughput benchmark (`qdrl bench skills`).
+    """
+    if algorithm not in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
+        raise ValueError(f"unknown skill-discovery algorithm {algorithm!r}")
+    is_smerl = algorithm.startswith("smerl")
+    cls = DADSConfig if algorithm.endswith("dads") else DIAYNConfig
+
+    def build_trainer(env: Env, config: TrainConfig) -> off_policy.Trainer:
+        skills = cls(num_skills=num_skills, hidden=hidden, extrinsic_scale=1.0 if is_smerl else 0.0)
+        sd = make_skill_discovery(env, SACConfig(hidden=hidden), skills, (smerl or SMERLConfig()) if is_smerl else None)
+        return make_trainer(sd.env, sd.agent, config, sd.storage)
+
+    return build_trainer
+
+
+def skills_recipe(base: Literal["diayn", "dads"], smerl: bool, description: str) -> Recipe:
+    """The recipe of DIAYN or DADS (`base`), with SMERL's gate if `smerl`."""
+    return Recipe(
+        parse=lambda spec, exp: parse_skills(spec, exp, base, smerl),
+        build=_build,
+        length_key="train.total_env_steps",
+        description=description,
+    )
+
+
+DIAYN = skills_recipe("diayn", False, "DIAYN (Eysenbach et al. 2019): skills that a discriminator tells apart")
+DADS = skills_recipe("dads", False, "DADS (Sharma et al. 2020): skills with predictable dynamics")
+SMERL_DIAYN = skills_recipe("diayn", True, "SMERL (Kumar et al. 2020) on DIAYN's diversity reward")
+SMERL_DADS = skills_recipe("dads", True, "SMERL (Kumar et al. 2020) on DADS's diversity reward")

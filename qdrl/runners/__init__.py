@@ -1,1 +1,0 @@
-"""Algorithm runs for the experiment driver; importing a module registers its algorithms."""
