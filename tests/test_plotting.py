@@ -218,3 +218,190 @@ def test_the_skills_plot_draws_the_maze_walls(tmp_path: Path) -> None:
     assert a.shape == b.shape
     dark = (b.max(axis=-1) < 0.35) & (a.min(axis=-1) > 0.9)  # wall pixels: grey where white was
     assert dark.sum() > 500
+
+
+# --- drawing into the caller's Axes / Figure (notebooks) ------------------------------
+
+
+def _artists(*axes: object) -> int:
+    return sum(len(a.collections) + len(a.images) + len(a.lines) + len(a.patches) for a in axes)  # type: ignore[attr-defined]
+
+
+@pytest.fixture
+def no_writes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """Fails a test that saves any figure, and checks its working directory stays empty."""
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a figure was saved")
+
+    monkeypatch.setattr(Figure, "savefig", refuse)
+    monkeypatch.chdir(tmp_path)
+    yield
+    plt.close("all")
+    assert list(tmp_path.iterdir()) == []
+
+
+def _grid_rep(fitnesses: np.ndarray, grid_shape: tuple[int, int] = (4, 4)) -> object:
+    import types
+
+    cells = int(np.prod(grid_shape))
+    return types.SimpleNamespace(
+        fitnesses=fitnesses, descriptors=np.zeros((cells, 2)), centroids=np.zeros((cells, 2)),
+        grid_shape=grid_shape, low=(0.0, 0.0), high=(1.0, 1.0),
+    )
+
+
+def _mo_inputs() -> tuple[np.ndarray, np.ndarray, object]:
+    rng = np.random.default_rng(0)
+    fitnesses = rng.uniform(size=(16, 5, 2))
+    fitnesses[3] = -np.inf  # an empty cell
+    hypervolumes = rng.uniform(size=16)
+    hypervolumes[3] = 0.0
+    layout = _grid_rep(np.zeros(16))
+    return fitnesses, hypervolumes, layout
+
+
+SINGLE_PANEL = {
+    "plot_comparison": lambda ax: plotting.plot_comparison(
+        {"a": [run_rows(10, s) for s in (1.0, 2.0)], "b": run_rows(8)}, "eval_return", "env_steps", ax=ax
+    ),
+    "plot_repertoire": lambda ax: plotting.plot_repertoire(
+        _grid_rep(np.where(np.arange(16) % 3 == 0, np.arange(16.0), -np.inf)), None, 0.0, 1.0, ax=ax
+    ),
+    "plot_pareto_front": lambda ax: plotting.plot_pareto_front(
+        {"a": np.random.default_rng(1).uniform(size=(10, 2))}, reference=(0.0, 0.0), ax=ax
+    ),
+    "plot_cell_hypervolumes": lambda ax: plotting.plot_cell_hypervolumes(
+        _mo_inputs()[2], _mo_inputs()[1], None, 0.0, 1.0, ax=ax
+    ),
+    "plot_cell_fronts": lambda ax: plotting.plot_cell_fronts(*_mo_inputs()[:2], reference=(0.0, 0.0), ax=ax),
+    "plot_skills": lambda ax: plotting.plot_skills(
+        np.random.default_rng(2).uniform(-1, 1, size=(6, 3, 2)), np.arange(3), np.ones((6, 3)),
+        None, (-1.0, -1.0), (1.0, 1.0), walls=[((0.0, -0.5), (0.0, 0.5), 0.1)], ax=ax,
+    ),
+    "draw_walls": lambda ax: plotting.draw_walls(ax, [((0.0, -0.5), (0.0, 0.5), 0.1), ((-1, 0), (1, 0), 0.0)]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SINGLE_PANEL))
+def test_single_panel_functions_draw_into_the_given_axes(name: str, no_writes: None) -> None:
+    import matplotlib.pyplot as plt
+
+    _, (ax, other) = plt.subplots(1, 2)
+    assert _artists(ax) == 0
+    assert SINGLE_PANEL[name](ax) is ax
+    assert _artists(ax) > 0
+    assert _artists(other) == 0  # the neighbouring panel is left alone
+
+
+def test_a_3d_front_needs_a_3d_axes(no_writes: None) -> None:
+    import matplotlib.pyplot as plt
+
+    front = {"a": np.random.default_rng(3).uniform(size=(10, 3))}
+    fig = plt.figure()
+    with pytest.raises(ValueError, match="projection='3d'"):
+        plotting.plot_pareto_front(front, ax=fig.add_subplot())
+    ax3 = fig.add_subplot(projection="3d")
+    assert plotting.plot_pareto_front(front, ax=ax3) is ax3
+    assert _artists(ax3) > 0
+
+
+MULTI_PANEL = {
+    # name: (call, the number of Axes it adds, colour bars included)
+    "plot_curves": (lambda fig: plotting.plot_curves(run_rows(10), fig=fig), 4),  # 2 metrics x 2 x keys
+    "plot_comparison": (
+        lambda fig: plotting.plot_comparison({"a": run_rows(10)}, "eval_return", ["env_steps", "wall_s"], fig=fig), 2
+    ),
+    "plot_repertoires": (
+        lambda fig: plotting.plot_repertoires(
+            {"a": _grid_rep(np.arange(16.0)), "b": _grid_rep(np.full(16, -np.inf))}, None, 0.0, 1.0, fig=fig
+        ),
+        3,  # two panels and the shared colour bar
+    ),
+    "plot_skills": (
+        lambda fig: plotting.plot_skills(
+            np.random.default_rng(2).uniform(-1, 1, size=(6, 3, 2)), np.arange(3), np.ones((6, 3)),
+            None, (-1.0, -1.0), (1.0, 1.0), archive=_grid_rep(np.arange(16.0)), fig=fig,
+        ),
+        3,  # trajectories, archive and its colour bar
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(MULTI_PANEL))
+def test_multi_panel_functions_draw_into_the_given_figure(name: str, no_writes: None) -> None:
+    import matplotlib.pyplot as plt
+
+    call, panels = MULTI_PANEL[name]
+    fig = plt.figure()
+    left, right = fig.subfigures(1, 2)
+    assert call(left) is left  # a SubFigure, so the plot composes with others
+    assert len(left.axes) == panels and not right.axes
+    assert _artists(*left.axes) > 0
+    whole = plt.figure()
+    assert call(whole) is whole
+
+
+def test_ax_with_several_x_keys_or_an_archive_is_refused(no_writes: None) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    with pytest.raises(ValueError, match="pass fig"):
+        plotting.plot_comparison({"a": run_rows(5)}, "eval_return", ["env_steps", "wall_s"], ax=ax)
+    with pytest.raises(ValueError, match="not both"):
+        plotting.plot_comparison({"a": run_rows(5)}, "eval_return", "env_steps", ax=ax, fig=fig)
+    with pytest.raises(ValueError, match="second panel"):
+        plotting.plot_skills(
+            np.zeros((3, 1, 2)), np.zeros(1), np.ones((3, 1)), None, (-1.0, -1.0), (1.0, 1.0),
+            archive=_grid_rep(np.zeros(16)), ax=ax,
+        )
+    assert _artists(ax) == 0
+
+
+def test_grid_heatmap_in_an_axes_shows_every_filled_cell() -> None:
+    from matplotlib.collections import QuadMesh
+    from matplotlib.figure import Figure
+
+    from qdrl.qd.repertoires import grid_repertoire
+
+    rng = np.random.default_rng(4)
+    descriptors = rng.uniform(size=(40, 2)).astype(np.float32)
+    rep = grid_repertoire(None, (10, 8), 0.0, 1.0).add(None, descriptors, descriptors.sum(-1))[0]
+    fitnesses = np.asarray(rep.fitnesses)
+    num_filled = int(np.sum(fitnesses > -np.inf))
+    assert 10 < num_filled < 40  # some cells hit twice, most of the grid empty
+
+    ax = Figure().subplots()
+    assert plotting.plot_repertoire(rep, None, 0.0, 1.0, ax=ax) is ax
+    (mesh,) = [c for c in ax.collections if isinstance(c, QuadMesh)]
+    shown = np.ma.masked_invalid(mesh.get_array())
+    assert shown.shape == (8, 10)  # y rows, x columns
+    assert int(shown.count()) == num_filled
+    np.testing.assert_allclose(np.sort(shown.compressed()), np.sort(fitnesses[fitnesses > -np.inf]), rtol=1e-6)
+
+
+def test_the_return_rule(tmp_path: Path) -> None:
+    import matplotlib.pyplot as plt
+    from matplotlib.axes import Axes
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rep = _grid_rep(np.arange(16.0))
+    before = plt.get_fignums()
+    # No path, no ax: a new figure's Axes, on the Agg canvas and unknown to pyplot.
+    ax = plotting.plot_repertoire(rep, None, 0.0, 1.0, title="r")
+    assert isinstance(ax, Axes) and isinstance(ax.figure.canvas, FigureCanvasAgg)
+    assert isinstance(plotting.plot_repertoires({"a": rep}, None, 0.0, 1.0), Figure)
+    assert isinstance(plotting.plot_curves(run_rows(5)), Figure)
+    assert plt.get_fignums() == before
+    # A path and an ax: the file is written as without the ax, and the ax returned.
+    mine = Figure().subplots()
+    assert plotting.plot_repertoire(rep, tmp_path / "both.png", 0.0, 1.0, ax=mine) is mine
+    alone = plotting.plot_repertoire(rep, tmp_path / "alone.png", 0.0, 1.0)
+    assert alone == tmp_path / "alone.png"
+    assert (tmp_path / "both.png").read_bytes() == alone.read_bytes()
+    fig = Figure()
+    assert plotting.plot_curves(run_rows(5), tmp_path / "curves", fig=fig) is fig
+    assert sorted(p.name for p in (tmp_path / "curves").iterdir()) == ["actor_loss.png", "eval_return.png"]
