@@ -13,7 +13,6 @@ last generation, sigma and the restarts.
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
@@ -23,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from qdrl.compiling import compile_timed
 from qdrl.config import NonNegativeInt, PositiveFloat, PositiveInt, build
 from qdrl.experiment import ExperimentConfig, Sections, register
 from qdrl.lapack_threads import single_threaded_lapack
@@ -145,11 +145,10 @@ class CMAESRun:
 
     def compile(self, state: CMAESRunState) -> float:
         n = self.cfg.log_every
-        t0 = time.perf_counter()
-        chunk = jax.jit(lambda s: jax.lax.scan(lambda c, _: self.step(c), s, None, length=n))
         with single_threaded_lapack():
-            self._chunk = chunk.lower(state).compile()
-        return time.perf_counter() - t0
+            compiled = compile_timed(lambda s: jax.lax.scan(lambda c, _: self.step(c), s, None, length=n), state)
+        self._chunk = compiled.fn
+        return compiled.seconds
 
     def run_chunk(self, state: CMAESRunState) -> tuple[CMAESRunState, Any]:
         with single_threaded_lapack():  # the eigendecompositions on one OpenBLAS thread

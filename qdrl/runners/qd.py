@@ -8,7 +8,6 @@ import dataclasses
 import functools
 import inspect
 import math
-import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
@@ -17,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from qdrl.compiling import compile_timed
 from qdrl.config import (
     ConfigError,
     NonNegativeFloat,
@@ -398,10 +398,10 @@ class QDRun:
     def compile(self, state: QDState) -> float:
         assert self.map_elites is not None
         me, n = self.map_elites, self.qd_cfg.log_every
-        t0 = time.perf_counter()
         state = self.placement.place(state, me.state_axes)  # a restored checkpoint comes back on one device
-        self._chunk = jax.jit(lambda s: me.run(s, n), donate_argnums=0).lower(state).compile()
-        return time.perf_counter() - t0
+        compiled = compile_timed(lambda s: me.run(s, n), state, donate_argnums=0)
+        self._chunk = compiled.fn
+        return compiled.seconds
 
     def run_chunk(self, state: QDState) -> tuple[QDState, Any]:
         assert self.map_elites is not None

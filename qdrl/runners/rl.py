@@ -10,6 +10,7 @@ from typing import Annotated, Any, Literal, NamedTuple
 import jax
 import numpy as np
 
+from qdrl.compiling import compile_timed
 from qdrl.config import ConfigError, OneOf, PositiveInt, build
 from qdrl.envs import env_names, make
 from qdrl.envs.brax import STATE_DESCRIPTORS, Backend
@@ -152,11 +153,9 @@ class OffPolicyRun:
         return RLState(train, archive), out
 
     def compile(self, state: RLState) -> float:
-        import time
-
-        t0 = time.perf_counter()
-        self._chunk = jax.jit(self.chunk, donate_argnums=0).lower(self._placed(state)).compile()
-        return time.perf_counter() - t0
+        compiled = compile_timed(self.chunk, self._placed(state), donate_argnums=0)
+        self._chunk = compiled.fn
+        return compiled.seconds
 
     # Which axis of each part of the state is split over the devices (None: replicated).
     state_axes: Any = RLState(STATE_AXES, None)  # type: ignore[arg-type]
