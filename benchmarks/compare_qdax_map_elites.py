@@ -9,7 +9,7 @@ qdrl's `time_map_elites` (what `qdrl bench map_elites --config C` runs) and
 fresh process with the same environment (so both compile cold, and neither uses
 a persistent compilation cache), alternating which side goes first. Then, once
 per container, each side profiles the HLO of the program it times
-(`qdrl.bench.hlo_summary`, per step): the module XLA:CPU compiled, and the
+(`qdrl.hlo_profile.hlo_summary`, per step): the module XLA:CPU compiled, and the
 un-optimised modules lowered for the CPU and for CUDA (a GPU program before
 XLA:GPU's fusion; lowering needs no GPU). It writes JSON with every run, the means
 per side, the ratios qdrl / QDax and both sides' op counts.
@@ -33,7 +33,7 @@ HERE = Path(__file__).resolve().parent
 CONTAINERS = {"cvt1024": ["--container", "cvt", "--num-centroids", "1024"],
               "grid32": ["--container", "grid", "--grid-shape", "32", "32"],
               "grid100": ["--container", "grid", "--grid-shape", "100", "100"]}
-# The counts that tell GPU kernels apart (see qdrl.bench.hlo_profile).
+# The counts that tell GPU kernels apart (see qdrl.hlo_profile.hlo_profile).
 OPS = ("scatter", "gather", "sort", "while", "while_iterations", "conditional", "reduce",
        "reduce-window", "dot", "dynamic-update-slice", "custom-call", "copy")
 
@@ -70,7 +70,7 @@ def run_qdax(python: str, container: str, seed: int, batch: int, iterations: int
            "--batch", str(batch), "--iterations", str(iterations)]
     if not hlo:
         return _run(cmd, env)
-    from qdrl.bench import hlo_summary
+    from qdrl.hlo_profile import hlo_summary
 
     with tempfile.TemporaryDirectory() as tmp:
         record = _run([*cmd, "--hlo-dir", tmp], env)

@@ -22,7 +22,7 @@ through `gpu_compile_only.py` (XLA's compile-only GPU device; `--plugin-path` is
 directory holding jax's CUDA plugin, `pip install --target DIR --no-deps
 jax-cuda13-plugin==V jax-cuda13-pjrt==V` for the jax version V of both sides): the
 compile times are then those of the GPU programs on this machine's CPU, and each run
-adds its GPU program's kernels and bytes per step (`qdrl.bench.hlo_profile`).
+adds its GPU program's kernels and bytes per step (`qdrl.hlo_profile.hlo_profile`).
 """
 
 from __future__ import annotations

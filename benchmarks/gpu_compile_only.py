@@ -10,7 +10,7 @@ redirected: the arguments become abstract values placed on the compile-only GPU,
 that the script's own `traced.lower().compile()` compiles its timed program for that
 GPU. When that compilation returns, the wrapper prints one JSON line (the wall and
 process CPU time from the start of tracing to the end of compilation, as the
-benchmarks time it on a real GPU, and the GPU program's `qdrl.bench.hlo_profile`)
+benchmarks time it on a real GPU, and the GPU program's `qdrl.hlo_profile.hlo_profile`)
 and exits before the script would run the program. Every other jitted call (the
 initial population, CVT centroids) runs on the CPU as usual.
 
@@ -84,8 +84,8 @@ def _report(t0: float, c0: float, compiled: Any, gpu: str) -> None:
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     import jax
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # qdrl.bench imports only jax
-    from qdrl.bench import hlo_profile
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # qdrl.hlo_profile imports only jax
+    from qdrl.hlo_profile import hlo_profile
 
     record = {
         "platform": f"cuda compile-only ({GPUS[gpu]['name']})",

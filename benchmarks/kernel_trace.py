@@ -4,7 +4,7 @@
         benchmarks/qdax_map_elites_arm.py --container cvt --batch 1024
 
 The script after `--` runs as `__main__` (with its own arguments) inside
-`jax.profiler.trace`; `qdrl.bench.kernel_summary` then groups the trace's device
+`jax.profiler.trace`; `qdrl.hlo_profile.kernel_summary` then groups the trace's device
 events by the XLA program that launched them and writes, per program, the kernels,
 their summed time, the device's span and the costliest ops; `--steps N` divides
 the figures of the program that launched the most kernels (the timed scan) by N.
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import jax
 
-from qdrl.bench import kernel_summary
+from qdrl.hlo_profile import kernel_summary
 
 
 def main() -> None:

@@ -17,10 +17,10 @@ CVT centroids: QDax computes them with scikit-learn's k-means (not timed, like
 qdrl's JAX k-means which is also left out). Grid: QDax's Euclidean centroids,
 which its repertoire indexes by nearest-centroid search.
 
-`--hlo-dir DIR` also writes the timed program's HLO there, as `qdrl.bench.module_texts`
+`--hlo-dir DIR` also writes the timed program's HLO there, as `qdrl.hlo_profile.module_texts`
 names them (cpu_optimized.txt, cpu_lowered.txt, cuda_lowered.txt; on a GPU
 gpu_optimized.txt and gpu_lowered.txt), for
-`compare_qdax_map_elites.py` to profile with `qdrl.bench.hlo_profile`.
+`compare_qdax_map_elites.py` to profile with `qdrl.hlo_profile.hlo_profile`.
 """
 
 from __future__ import annotations
@@ -94,9 +94,9 @@ def main() -> None:
     compiled = traced.lower().compile()
     compile_s, compile_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     if args.hlo_dir is not None:
-        # qdrl.bench imports only jax: it loads from the source tree in QDax's environment too.
+        # qdrl.hlo_profile imports only jax: it loads from the source tree in QDax's environment too.
         sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-        from qdrl.bench import write_module_texts
+        from qdrl.hlo_profile import write_module_texts
 
         write_module_texts(args.hlo_dir, traced, compiled)
     t0 = time.perf_counter()

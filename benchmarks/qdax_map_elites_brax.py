@@ -104,9 +104,9 @@ def main() -> None:
     compiled = traced.lower().compile()
     compile_s, compile_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     if args.hlo_dir is not None:
-        # qdrl.bench imports only jax: it loads from the source tree in QDax's environment too.
+        # qdrl.hlo_profile imports only jax: it loads from the source tree in QDax's environment too.
         sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-        from qdrl.bench import write_module_texts
+        from qdrl.hlo_profile import write_module_texts
 
         write_module_texts(args.hlo_dir, traced, compiled)
     t0 = time.perf_counter()

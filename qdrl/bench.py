@@ -1,18 +1,15 @@
 """`qdrl bench`: throughput figures as JSON (env steps/s, gradient steps/s, compile time).
 
-Each benchmark compiles its chunk function ahead of time (timed apart), runs one
-warm-up chunk, then times `repeats` chunks. Figures depend on the machine: the
-JSON records the device and the versions used. `hlo_profile` counts what one
-compiled (or only lowered) XLA module does, to compare programs op by op.
+Each benchmark compiles its chunk function ahead of time (`qdrl.compiling.compile_timed`,
+timed apart), runs one warm-up chunk, then times `repeats` chunks. Figures depend on
+the machine: the JSON records the device and the versions used. The HLO profiles that
+the MAP-Elites benchmarks record come from `qdrl.hlo_profile`.
 """
 
 from __future__ import annotations
 
-import collections
-import dataclasses
 import json
 import platform
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -20,6 +17,9 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+
+from qdrl import hlo_profile as profiler
+from qdrl.compiling import compile_timed
 
 BenchFn = Callable[..., list[dict[str, Any]]]  # (quick, seed, config) -> records
 BENCHES: dict[str, BenchFn] = {}
@@ -98,9 +98,8 @@ def time_trainer(
         init = lambda k: jax.vmap(trainer.init)(jax.random.split(k, population))  # noqa: E731
         run_chunk = jax.vmap(trainer.run_chunk)
     state = jax.jit(init)(jax.random.PRNGKey(seed))  # jit: distinct buffers for donation
-    t0 = time.perf_counter()
-    chunk = jax.jit(run_chunk, donate_argnums=0).lower(state).compile()
-    compile_s = time.perf_counter() - t0
+    compiled = compile_timed(run_chunk, state, donate_argnums=0)
+    chunk = compiled.fn
     state, _ = chunk(state)  # warm-up chunk (fills the buffer past learning_starts)
     jax.block_until_ready(state)
     steps0, grads0 = int(jnp.sum(state.env_steps)), int(jnp.sum(state.grad_steps))
@@ -120,7 +119,7 @@ def time_trainer(
         "batch_size": batch_size,
         "hidden": list(hidden),
         "population": population,
-        "compile_s": round(compile_s, 2),
+        "compile_s": round(compiled.seconds, 2),
         "env_steps": steps,
         "wall_s": round(elapsed, 3),
         "env_steps_per_s": round(steps / elapsed, 1),
@@ -168,245 +167,6 @@ def bench_rl(quick: bool, seed: int = 0, config: str | None = None) -> list[dict
     return [time_trainer(a, "halfcheetah", seed=seed) for a in algorithms]
 
 
-_DTYPE_BYTES = {"pred": 1, "s8": 1, "u8": 1, "s16": 2, "u16": 2, "f16": 2, "bf16": 2,
-                "s32": 4, "u32": 4, "f32": 4, "s64": 8, "u64": 8, "f64": 8}
-_SHAPE = re.compile(r"\b(pred|[suf]\d+|bf16)\[([\d,]*)\]")
-_INSTRUCTION = re.compile(r"^\s+(?:ROOT\s+)?%?[\w.\-]+ = (.*?) ([a-z][\w\-]*)\((.*)$")
-_TRIP_COUNT = re.compile(r'"known_trip_count":\{"n":"(\d+)"')
-# Instructions that move no data and launch nothing.
-_FREE_OPS = frozenset(
-    {"parameter", "constant", "get-tuple-element", "tuple", "bitcast", "after-all", "opt-barrier"}
-)
-# Ops that name a fusion's kind (the first one present wins) and that an accelerator
-# runs as kernels of their own or that bound fusion.
-HEAVY_OPS = ("scatter", "sort", "dot", "custom-call", "gather", "dynamic-update-slice",
-             "reduce-window", "reduce")
-
-
-def _bytes_of(text: str) -> int:
-    total = 0
-    for dtype, dims in _SHAPE.findall(text):
-        size = 1
-        for d in dims.split(","):
-            if d:
-                size *= int(d)
-        total += size * _DTYPE_BYTES[dtype]
-    return total
-
-
-def _called(attrs: str, key: str) -> list[str]:
-    m = re.search(r"\b" + key + r"=(\{[^}]*\}|%?[\w.\-]+)", attrs)
-    return re.findall(r"%?([\w.\-]+)", m.group(1)) if m else []
-
-
-@dataclasses.dataclass
-class _Tally:
-    ops: collections.Counter[str]
-    kernels: collections.Counter[str]
-    bytes: int
-
-    def add(self, other: _Tally) -> None:
-        self.ops.update(other.ops)
-        self.kernels.update(other.kernels)
-        self.bytes += other.bytes
-
-
-def hlo_profile(hlo_text: str) -> dict[str, Any]:
-    """What one call of an XLA HLO module executes: ops by kind, kernels, bytes moved.
-
-    `hlo_text` is HLO text, optimised (`jax.jit(f).lower(...).compile().as_text()`)
-    or not (`lower(...).as_text(dialect="hlo")`). The module is walked from its
-    entry: called computations once per call, while bodies once per iteration
-    when XLA annotated a known trip count (un-optimised modules have none: once),
-    and of a conditional's branches the costliest (most bytes), so that the
-    figures bound one execution from above. Returns:
-
-    - `instructions`: instructions in the module text (its size);
-    - `ops`: executed ops by opcode, fusions opened (parameters, constants,
-      tuples, bitcasts left out); `while_iterations` counts loop iterations;
-    - `kernels`: executed top-level ops (each fusion counts once) and
-      `kernels_by_kind` (a fusion is named `fusion:` + the first of HEAVY_OPS it
-      holds, else `fusion:loop`): in an optimised module, the kernels launched;
-      in an un-optimised one, an upper bound;
-    - `bytes`: bytes read and written by those top-level ops (their operands and
-      results), the traffic to memory when nothing stays in caches.
-    """
-    comps: dict[str, list[tuple[str, str, str]]] = {}
-    entry, current, instructions = None, None, 0
-    for line in hlo_text.splitlines():
-        if line and not line[0].isspace() and line.rstrip().endswith("{") and not line.startswith("HloModule"):
-            m = re.match(r"^(ENTRY\s+)?%?([\w.\-]+)", line)
-            if m:
-                current = m.group(2)
-                comps[current] = []
-                entry = current if m.group(1) else entry
-            continue
-        if line.strip() == "}":
-            current = None
-            continue
-        m = _INSTRUCTION.match(line)
-        if m and current is not None:
-            instructions += 1
-            comps[current].append((m.group(1), m.group(2), m.group(3)))
-    if entry is None:
-        raise ValueError("hlo_profile: expected HLO text with an ENTRY computation")
-    def tally(name: str, times: int, top: bool) -> _Tally:
-        out = _Tally(collections.Counter(), collections.Counter(), 0)
-        for shape, op, rest in comps[name]:
-            if op == "while":
-                trip = _TRIP_COUNT.search(rest)
-                iterations = times * (int(trip.group(1)) if trip else 1)
-                out.ops["while"] += times
-                out.ops["while_iterations"] += iterations
-                for c in _called(rest, "body") + _called(rest, "condition"):
-                    out.add(tally(c, iterations, top))
-                continue
-            if op == "conditional":
-                out.ops["conditional"] += times
-                branches = [
-                    tally(c, times, top)
-                    for key in ("branch_computations", "true_computation", "false_computation")
-                    for c in _called(rest, key)
-                ]
-                if branches:  # the costliest branch: an upper bound of one execution
-                    out.add(max(branches, key=lambda t: (t.bytes, sum(t.kernels.values()))))
-                continue
-            if op == "call":
-                for c in _called(rest, "to_apply"):
-                    out.add(tally(c, times, top))
-                continue
-            if op in _FREE_OPS:
-                continue
-            kind = op
-            if op == "fusion":
-                inner = [o for c in _called(rest, "calls") for _, o, _ in comps.get(c, [])]
-                for c in _called(rest, "calls"):
-                    out.ops.update(tally(c, times, False).ops)
-                kind = "fusion:" + next((h for h in HEAVY_OPS if h in inner), "loop")
-            else:
-                out.ops[op] += times
-            if top:
-                out.kernels[kind] += times
-                out.bytes += times * (_bytes_of(shape) + _bytes_of(rest.split("), ")[0]))
-        return out
-
-    total = tally(entry, 1, True)
-    ops, kernels, moved = total.ops, total.kernels, total.bytes
-    return {
-        "instructions": instructions,
-        "ops": dict(sorted(ops.items())),
-        "kernels": sum(kernels.values()),
-        "kernels_by_kind": dict(sorted(kernels.items())),
-        "bytes": moved,
-    }
-
-
-def module_texts(traced: Any, compiled: Any) -> dict[str, str]:
-    """HLO texts of a jitted function: as compiled here, as lowered here, and lowered for CUDA.
-
-    `traced` is `jax.jit(f).trace(...)`, `compiled` its compiled form on this
-    backend. Lowering for CUDA needs no GPU (only XLA:GPU's optimisation does): it
-    shows the program a GPU starts from (unrolled threefry, no CPU-only branch of
-    `lax.platform_dependent`).
-    """
-    here = jax.default_backend()
-    texts = {
-        f"{here}_optimized": compiled.as_text(),
-        f"{here}_lowered": traced.lower().as_text(dialect="hlo"),
-    }
-    if here != "gpu":
-        texts["cuda_lowered"] = traced.lower(lowering_platforms=("cuda",)).as_text(dialect="hlo")
-    return texts
-
-
-def write_module_texts(directory: str | Path, traced: Any, compiled: Any) -> None:
-    """Writes each text of `module_texts` to DIRECTORY/NAME.txt (the directory is created)."""
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    for name, text in module_texts(traced, compiled).items():
-        (out / f"{name}.txt").write_text(text)
-
-
-def per_iteration(profile: dict[str, Any], iterations: int) -> dict[str, Any]:
-    """`hlo_profile` of a scanned run divided by its iterations (rounded to 0.01)."""
-
-    def div(x: Any) -> Any:
-        if isinstance(x, dict):
-            return {k: div(v) for k, v in x.items()}
-        return round(x / iterations, 2)
-
-    return {k: (v if k == "instructions" else div(v)) for k, v in profile.items()}
-
-
-def hlo_summary(texts: dict[str, str], iterations: int) -> dict[str, Any]:
-    """`hlo_profile` of each text of `module_texts` for a run of `iterations` scanned steps, per step.
-
-    Optimised modules carry the scan's trip count (their totals are divided by
-    `iterations`); lowered ones count the scan's body once, i.e. one step.
-    """
-    return {
-        name: per_iteration(hlo_profile(text), iterations if name.endswith("_optimized") else 1)
-        for name, text in texts.items()
-    }
-
-
-def _trace_events(path: str | Path) -> tuple[str, list[tuple[str, str, float, float]]]:
-    """(where the events come from, [(module, op, start_ns, duration_ns)]) of an xplane file."""
-    from jax.profiler import ProfileData
-
-    planes = list(ProfileData.from_file(str(path)).planes)
-    device = [p for p in planes if p.name.startswith("/device:GPU")]
-    events: list[tuple[str, str, float, float]] = []
-    for plane in device or planes:
-        for line in plane.lines:
-            for event in line.events:
-                stats = dict(event.stats)
-                if "hlo_op" not in stats and not device:
-                    continue  # host planes: only XLA's thunks, not Python's frames
-                module = f"{stats.get('hlo_module', '?')}#{stats.get('program_id', '?')}"
-                events.append((module, str(stats.get("hlo_op", event.name)), float(event.start_ns), float(event.duration_ns)))
-    return ("gpu" if device else "host"), events
-
-
-def kernel_summary(trace_file: str | Path, steps: int = 1, top: int = 25) -> dict[str, Any]:
-    """What the device ran in a `jax.profiler.trace`: kernels per XLA program, busy time and span.
-
-    `trace_file` is the trace's `*.xplane.pb`. On a GPU the events are the
-    `/device:GPU:*` planes' (one per kernel or copy, as CUPTI saw them); on a CPU,
-    XLA's thunks on the host plane. Events are grouped by the program that launched
-    them (`hlo_module#program_id`); per program: kernels, summed time (`busy_us`),
-    the span from the first kernel's start to the last one's end (`span_us`; span
-    minus busy is time the device waited for launches) and the `top` costliest HLO
-    ops. `per_step` divides the figures of the program that launched the most
-    kernels (a scanned run) by `steps`.
-    """
-    source, events = _trace_events(trace_file)
-    by_module: dict[str, list[tuple[str, float, float]]] = collections.defaultdict(list)
-    for module, op, start, dur in events:
-        by_module[module].append((op, start, dur))
-    modules: dict[str, Any] = {}
-    for module, evs in sorted(by_module.items(), key=lambda kv: -sum(e[2] for e in kv[1])):
-        ops: dict[str, list[float]] = collections.defaultdict(lambda: [0, 0.0])
-        for op, _, dur in evs:
-            ops[op][0] += 1
-            ops[op][1] += dur / 1e3
-        modules[module] = {
-            "kernels": len(evs),
-            "busy_us": round(sum(d for *_, d in evs) / 1e3, 1),
-            "span_us": round((max(s + d for _, s, d in evs) - min(s for _, s, _ in evs)) / 1e3, 1),
-            "top": [
-                {"op": op, "count": int(c), "total_us": round(t, 1)}
-                for op, (c, t) in sorted(ops.items(), key=lambda kv: -kv[1][1])[:top]
-            ],
-        }
-    out: dict[str, Any] = {"source": source, "events": len(events), "modules": modules}
-    if modules:
-        name, main = max(modules.items(), key=lambda kv: kv[1]["kernels"])
-        out["main_module"] = name
-        out["per_step"] = {k: round(main[k] / steps, 2) for k in ("kernels", "busy_us", "span_us")}
-    return out
-
-
 # The containers of the MAP-Elites benchmark (the QDax paper's arm setting).
 ME_CONTAINERS: dict[str, tuple[str, Any]] = {
     "cvt1024": ("cvt", 1024),
@@ -423,22 +183,19 @@ class TimedRun(NamedTuple):
     compile_s: float
     run_s: float
     compile_cpu_s: float  # process CPU time of the compilation (steadier than wall time on a shared machine)
-    hlo: dict[str, str] | None  # `module_texts` of the run, when asked for
+    hlo: dict[str, str] | None  # `qdrl.hlo_profile.module_texts` of the run, when asked for
 
 
 def _time_run(me: Any, state: Any, iterations: int, with_hlo: bool = False) -> TimedRun:
     """Compile `iterations` MAP-Elites steps as one scan ahead of time, then run it once."""
     jax.block_until_ready(state)
-    t0, c0 = time.perf_counter(), time.process_time()
-    traced = jax.jit(lambda s: me.run(s, iterations)).trace(state)
-    run = traced.lower().compile()
-    compile_s, compile_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+    compiled = compile_timed(lambda s: me.run(s, iterations), state)
     t0 = time.perf_counter()
-    state, metrics = run(state)
+    state, metrics = compiled.fn(state)
     jax.block_until_ready(state)
     run_s = time.perf_counter() - t0
-    texts = module_texts(traced, run) if with_hlo else None
-    return TimedRun(state, metrics, compile_s, run_s, compile_cpu_s, texts)
+    texts = profiler.module_texts(compiled.traced, compiled.fn) if with_hlo else None
+    return TimedRun(state, metrics, compiled.seconds, run_s, compiled.cpu_seconds, texts)
 
 
 def time_map_elites(
@@ -455,7 +212,7 @@ def time_map_elites(
 ) -> dict[str, Any]:
     """MAP-Elites on the arm: `iterations` iterations as one scan compiled ahead of time.
 
-    With `hlo`, the record's "hlo" holds `hlo_summary` of the timed program (per step).
+    With `hlo`, the record's "hlo" holds `qdrl.hlo_profile.hlo_summary` of the timed program (per step).
     """
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
@@ -499,7 +256,7 @@ def time_map_elites(
         "max_fitness": last["max_fitness"],
     }
     if timed.hlo is not None:
-        record["hlo"] = hlo_summary(timed.hlo, iterations)
+        record["hlo"] = profiler.hlo_summary(timed.hlo, iterations)
     return record
 
 
@@ -507,7 +264,7 @@ def time_map_elites(
 def bench_map_elites(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
     """MAP-Elites on the 100-DoF arm, batch 1024, 200 iterations, iso-line (0.05, 0.1).
 
-    Each record also profiles the timed program's HLO (`hlo_summary`, per step).
+    Each record also profiles the timed program's HLO (`qdrl.hlo_profile.hlo_summary`, per step).
     """
     containers = list(ME_CONTAINERS) if config is None else [config]
     kwargs: dict[str, Any] = {"iterations": 20, "cvt_samples": 10_000} if quick else {}
@@ -535,9 +292,8 @@ def time_task(
     for batch in batches:
         task = make_task(name, episode_length=episode_length, eval_batch=batch)
         genotypes = task.init_genotypes(key, batch)
-        t0 = time.perf_counter()
-        score = jax.jit(task.scoring_fn).lower(genotypes, key).compile()
-        compile_s = time.perf_counter() - t0
+        compiled = compile_timed(task.scoring_fn, genotypes, key)
+        score = compiled.fn
         jax.block_until_ready(score(genotypes, key))
         times = []
         for i in range(3):  # best of three calls: one call is short enough to be noisy
@@ -545,7 +301,7 @@ def time_task(
             jax.block_until_ready(score(genotypes, jax.random.fold_in(key, i + 1)))
             times.append(time.perf_counter() - t0)
         elapsed = min(times)
-        record[f"rollout_b{batch}_compile_s"] = round(compile_s, 2)
+        record[f"rollout_b{batch}_compile_s"] = round(compiled.seconds, 2)
         # Ceiling: every simulated step, the masked ones after an early termination included.
         record[f"rollout_b{batch}_env_steps_per_s"] = round(batch * episode_length / elapsed, 1)
     me = time_policy_map_elites(
@@ -581,7 +337,7 @@ def time_policy_map_elites(
     `blocks`: the task rolls out in blocks of the run's batch (`eval_batch` =
     `batch_size`, one block per evaluation, as `qdrl run` does); False rolls the
     batch out without blocks (`eval_batch` None), to measure what blocks cost.
-    With `hlo`, the record's "hlo" holds `hlo_summary` of the timed program.
+    With `hlo`, the record's "hlo" holds `qdrl.hlo_profile.hlo_summary` of the timed program.
     """
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
@@ -617,7 +373,7 @@ def time_policy_map_elites(
         "max_fitness": float(metrics["max_fitness"][-1]),
     }
     if timed.hlo is not None:
-        record["hlo"] = hlo_summary(timed.hlo, iterations)
+        record["hlo"] = profiler.hlo_summary(timed.hlo, iterations)
     return record
 
 

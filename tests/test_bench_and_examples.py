@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import pytest
 
@@ -15,15 +17,57 @@ from qdrl.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_bench_map_elites_quick(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+class Start(NamedTuple):
+    """What a timed MAP-Elites run started from."""
+
+    qd_score: float
+    iteration: int
+    evaluations: int
+    env_steps: int
+
+
+@pytest.fixture
+def timed_runs(monkeypatch: pytest.MonkeyPatch) -> list[tuple[Start, Any]]:
+    """Every `qdrl.bench._time_run` of the test: the state it started from and the `TimedRun` it returned."""
+    from qdrl import bench
+
+    runs: list[tuple[Start, Any]] = []
+    real = bench._time_run
+
+    def spy(me: Any, state: Any, iterations: int, with_hlo: bool = False) -> Any:
+        qd = float(me.metrics_fn(state.repertoire, me.qd_offset)["qd_score"])
+        start = Start(qd, int(state.iteration), int(state.evaluations), int(state.env_steps))
+        timed = real(me, state, iterations, with_hlo)
+        runs.append((start, timed))
+        return timed
+
+    monkeypatch.setattr(bench, "_time_run", spy)
+    return runs
+
+
+def positive_seconds(x: float) -> bool:
+    return math.isfinite(x) and x > 0
+
+
+def test_bench_map_elites_quick(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], timed_runs: list[tuple[Start, Any]]
+) -> None:
     out = tmp_path / "me.json"
     assert main(["bench", "map_elites", "--quick", "--config", "grid32", "--out", str(out)]) == 0
     record = json.loads(capsys.readouterr().out)
     assert record == json.loads(out.read_text())
     (result,) = record["results"]
     assert result["cells"] == 1024 and result["iterations"] == 20 and result["dof"] == 100
-    for key in ("compile_s", "evals_per_s", "qd_score", "coverage"):
-        assert result[key] > 0, key
+    # The timed scan ran every iteration: 20 batches of 1024 evaluated, and the
+    # throughput is those evaluations over the timed run.
+    ((start, timed),) = timed_runs
+    done = int(timed.state.evaluations) - start.evaluations
+    assert int(timed.state.iteration) - start.iteration == 20 and done == 20 * 1024
+    assert result["evals_per_s"] == pytest.approx(done / timed.run_s, abs=0.051)
+    assert result["run_s"] == round(timed.run_s, 4)
+    assert positive_seconds(result["compile_s"]) and positive_seconds(result["compile_cpu_s"])
+    assert result["compile_s"] == round(timed.compile_s, 3)
+    assert result["qd_score"] > start.qd_score and 0 < result["coverage"] <= 1
     assert record["machine"]["jax"]
     # The timed program's HLO, per step: the GPU program has no conditional and no
     # loop inside the step (the one while is the scan over iterations).
@@ -38,8 +82,16 @@ def test_bench_rl_quick(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "rl", "--quick", "--config", "td3"]) == 0
     (result,) = json.loads(capsys.readouterr().out)["results"]
     assert result["algorithm"] == "td3"
-    for key in ("compile_s", "env_steps_per_s", "grad_steps_per_s"):
-        assert result[key] > 0, key
+    # --quick times one chunk of 50 iterations of `num_envs` env steps and
+    # `grad_steps_per_iter` updates each (the warm-up chunk filled the buffer).
+    num_envs, updates = result["num_envs"], result["grad_steps_per_iter"]
+    assert result["env_steps"] == 50 * num_envs
+    wall = result["wall_s"]  # rounded to 1 ms
+    rate = result["env_steps"] / wall
+    assert result["env_steps_per_s"] == pytest.approx(rate, rel=1e-3 + 5e-4 / wall)
+    # grad steps / env steps = (50 x updates) / (50 x num_envs): the same time divides both.
+    assert result["grad_steps_per_s"] == pytest.approx(result["env_steps_per_s"] * updates / num_envs, rel=1e-3)
+    assert positive_seconds(result["compile_s"]) and positive_seconds(wall)
 
 
 def test_bench_unknown_name(capsys: pytest.CaptureFixture[str]) -> None:
@@ -58,20 +110,40 @@ def test_example_runs(script: str) -> None:
         assert float(last.split("eval return")[1]) > -10.0
 
 
-def test_bench_tasks_quick(capsys: pytest.CaptureFixture[str]) -> None:
+def test_bench_tasks_quick(capsys: pytest.CaptureFixture[str], timed_runs: list[tuple[Start, Any]]) -> None:
     assert main(["bench", "tasks", "--quick", "--config", "point_maze"]) == 0
     (result,) = json.loads(capsys.readouterr().out)["results"]
-    assert result["task"] == "point_maze"
-    for key in ("rollout_b32_env_steps_per_s", "map_elites_env_steps_per_s", "map_elites_compile_s"):
-        assert result[key] > 0, key
-    assert result["map_elites_fraction_of_ceiling"] > 0
+    assert result["task"] == "point_maze" and result["episode_length"] == 20
+    assert result["rollout_b32_env_steps_per_s"] > 0
+    assert positive_seconds(result["rollout_b32_compile_s"])
+    # MAP-Elites (--quick: batch 32, 2 iterations): both iterations ran, its figure is
+    # every simulated step of them over the timed run, and it improved on the start.
+    ((start, timed),) = timed_runs
+    assert int(timed.state.iteration) - start.iteration == 2
+    assert int(timed.state.evaluations) - start.evaluations == 2 * 32
+    assert 0 < int(timed.state.env_steps) - start.env_steps <= 2 * 32 * 20
+    assert result["map_elites_env_steps_per_s"] == pytest.approx(2 * 32 * 20 / timed.run_s, abs=0.051)
+    assert result["map_elites_compile_s"] == round(timed.compile_s, 2) and positive_seconds(timed.compile_s)
+    assert result["map_elites_fraction_of_ceiling"] == round(
+        result["map_elites_env_steps_per_s"] / result["rollout_b32_env_steps_per_s"], 3
+    )
+    assert result["qd_score"] > start.qd_score
 
 
-def test_bench_policy_map_elites_quick(capsys: pytest.CaptureFixture[str]) -> None:
+def test_bench_policy_map_elites_quick(
+    capsys: pytest.CaptureFixture[str], timed_runs: list[tuple[Start, Any]]
+) -> None:
     assert main(["bench", "policy_map_elites", "--quick", "--config", "point_maze"]) == 0
     (result,) = json.loads(capsys.readouterr().out)["results"]
     assert result["task"] == "point_maze" and result["evaluations"] == 16 * 3
-    assert result["env_steps_per_s"] > 0 and 0 < result["coverage"] <= 1
+    # --quick: batch 16, 2 iterations of episodes of 10 steps, after 16 initial evaluations.
+    ((start, timed),) = timed_runs
+    assert start.evaluations == 16 and int(timed.state.evaluations) == result["evaluations"]
+    assert int(timed.state.iteration) - start.iteration == 2
+    assert 0 < int(timed.state.env_steps) - start.env_steps <= 2 * 16 * 10
+    assert result["env_steps_per_s"] == pytest.approx(2 * 16 * 10 / timed.run_s, abs=0.051)
+    assert positive_seconds(result["compile_s"]) and positive_seconds(result["compile_cpu_s"])
+    assert result["qd_score"] > start.qd_score and 0 < result["coverage"] <= 1
 
 
 HLO = """HloModule m
@@ -120,7 +192,7 @@ ENTRY %main (x: f32[8], i: s32[2], u: f32[2], p: pred[]) -> f32[8] {
 
 
 def test_hlo_profile_counts_loops_fusions_and_the_costliest_branch() -> None:
-    from qdrl.bench import hlo_profile
+    from qdrl.hlo_profile import hlo_profile
 
     prof = hlo_profile(HLO)
     assert prof["instructions"] == 23
@@ -134,11 +206,37 @@ def test_hlo_profile_counts_loops_fusions_and_the_costliest_branch() -> None:
 
 
 
+def test_hlo_profile_imports_only_jax_and_the_standard_library() -> None:
+    """Benchmark scripts load it from the source tree in another library's environment."""
+    code = (
+        "import sys, jax; before = set(sys.modules); import qdrl.hlo_profile; "
+        "new = set(sys.modules) - before; "
+        "print(sorted(m for m in new if m.split('.')[0] not in sys.stdlib_module_names))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout.replace("'", '"')) == ["qdrl", "qdrl._quiet", "qdrl.hlo_profile"]
+
+
+def test_compile_timed_times_the_executable_it_returns() -> None:
+    import jax
+    import jax.numpy as jnp
+
+    from qdrl.compiling import compile_timed
+    from qdrl.hlo_profile import module_texts
+
+    x = jnp.arange(4.0)
+    compiled = compile_timed(lambda a, b: a * b + 1.0, x, x)
+    assert compiled.fn(x, x).tolist() == [1.0, 2.0, 5.0, 10.0]
+    assert positive_seconds(compiled.seconds) and math.isfinite(compiled.cpu_seconds)
+    assert "multiply" in module_texts(compiled.traced, compiled.fn)[f"{jax.default_backend()}_lowered"]
+
+
 def test_write_module_texts_writes_the_compiled_and_lowered_programs(tmp_path: Path) -> None:
     import jax
     import jax.numpy as jnp
 
-    from qdrl.bench import write_module_texts
+    from qdrl.hlo_profile import write_module_texts
 
     traced = jax.jit(lambda x: jnp.sin(x) * 2.0).trace(jnp.ones(4))
     write_module_texts(tmp_path / "hlo", traced, traced.lower().compile())
@@ -172,7 +270,7 @@ def test_kernel_summary_finds_the_scanned_program_and_counts_its_kernels_per_ste
     import jax
     import jax.numpy as jnp
 
-    from qdrl.bench import kernel_summary
+    from qdrl.hlo_profile import kernel_summary
 
     def scanned(x: jax.Array) -> jax.Array:
         def body(c: jax.Array, _: None) -> tuple[jax.Array, None]:

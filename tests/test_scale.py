@@ -7,6 +7,7 @@ count at start-up), which runs every spec on 1 and on 2 devices one after the ot
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -184,6 +185,8 @@ def test_bench_scaling_reports_both_device_counts() -> None:
     assert one["unit"] == two["unit"] == "evaluations_per_s"
     assert one["parallel_efficiency"] == 1.0
     assert two["parallel_efficiency"] == pytest.approx(two["throughput"] / (2 * one["throughput"]), abs=2e-3)
+    for r in (one, two):  # one timed chunk (--quick) of a program compiled for its device count
+        assert r["chunks"] == 1 and math.isfinite(r["compile_s"]) and r["compile_s"] > 0 and r["timed_s"] > 0
     with pytest.raises(ValueError, match="N:case"):
         bench_scaling(quick=True, config="2:nope")
 
