@@ -15,11 +15,22 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import brax
 import jax
 import jax.numpy as jnp
 
+from qdrl import bench_scaling, envs
 from qdrl import hlo_profile as profiler
+from qdrl.agents import AGENTS
+from qdrl.agents.dads import DADSConfig
+from qdrl.agents.diayn import DIAYNConfig
+from qdrl.algorithms.skills import skill_trainer_builder
 from qdrl.compiling import compile_timed
+from qdrl.off_policy import TrainConfig, make_trainer
+from qdrl.qd.emitters.ga import isoline_emitter
+from qdrl.qd.map_elites import MapElites
+from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire, grid_repertoire
+from qdrl.tasks import make_task
 
 BenchFn = Callable[..., list[dict[str, Any]]]  # (quick, seed, config) -> records
 BENCHES: dict[str, BenchFn] = {}
@@ -35,7 +46,6 @@ def _register(name: str) -> Callable[[BenchFn], BenchFn]:
 
 def machine() -> dict[str, Any]:
     """Where the figures were measured."""
-    import brax
 
     return {
         "device": str(jax.devices()[0].device_kind),
@@ -72,9 +82,6 @@ def time_trainer(
     `build(env, train_config) -> Trainer` replaces the default trainer of the
     `AGENTS` entry `algorithm` (e.g. a skill-discovery agent; `algorithm` then only labels).
     """
-    from qdrl import envs
-    from qdrl.agents import AGENTS
-    from qdrl.off_policy import TrainConfig, make_trainer
 
     env = envs.make(env_name, backend=backend, episode_length=episode_length)
     chunk_steps = iters_per_chunk * num_envs
@@ -214,11 +221,6 @@ def time_map_elites(
 
     With `hlo`, the record's "hlo" holds `qdrl.hlo_profile.hlo_summary` of the timed program (per step).
     """
-    from qdrl.qd.emitters.ga import isoline_emitter
-    from qdrl.qd.map_elites import MapElites
-    from qdrl.qd.repertoires import cvt_repertoire, grid_repertoire
-    from qdrl.qd.repertoires.cvt import cvt_centroids
-    from qdrl.tasks import make_task
 
     if container not in ME_CONTAINERS:
         raise ValueError(f"unknown container {container!r}; expected one of {sorted(ME_CONTAINERS)}")
@@ -285,7 +287,6 @@ def time_task(
 
     Each batch is rolled out as one block (`eval_batch` = the batch), as a run does.
     """
-    from qdrl.tasks import make_task
 
     key = jax.random.PRNGKey(seed)
     record: dict[str, Any] = {"bench": f"task/{name}", "task": name, "episode_length": episode_length}
@@ -339,10 +340,6 @@ def time_policy_map_elites(
     batch out without blocks (`eval_batch` None), to measure what blocks cost.
     With `hlo`, the record's "hlo" holds `qdrl.hlo_profile.hlo_summary` of the timed program.
     """
-    from qdrl.qd.emitters.ga import isoline_emitter
-    from qdrl.qd.map_elites import MapElites
-    from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire
-    from qdrl.tasks import make_task
 
     eval_batch = batch_size if blocks else None
     task = make_task(name, episode_length=episode_length, eval_batch=eval_batch)
@@ -411,7 +408,6 @@ def run_bench(
     config: str | None = None,
 ) -> dict[str, Any]:
     """Run benchmark `name`; returns (and optionally writes) its JSON record."""
-    from qdrl import bench_scaling
 
     BENCHES.setdefault("scaling", bench_scaling.bench_scaling)
     if name not in BENCHES:
@@ -437,9 +433,6 @@ def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[
     their configs' other defaults (DADS: the exact marginal over the 10 skills, the model
     trained on one update in 8).
     """
-    from qdrl.agents.dads import DADSConfig
-    from qdrl.agents.diayn import DIAYNConfig
-    from qdrl.algorithms.skills import skill_trainer_builder
 
     algorithms: tuple[str, ...] = ("sac", "diayn", "dads", "smerl_diayn", "smerl_dads")
     if config is not None:

@@ -21,6 +21,8 @@ from typing import Any
 
 import jax
 
+from qdrl.experiment import build_run, compile_chunk, initial_state, run_chunk
+
 # name -> spec at full size; QUICK: what `--quick` overrides (tiny, for tests).
 _POLICY_QD = {"repertoire": {"kind": "cvt", "num_centroids": 256, "cvt_samples": 20_000}}
 CASES: dict[str, dict[str, Any]] = {
@@ -100,7 +102,6 @@ def measure(
     names: list[str], device_counts: list[int], quick: bool, repeats: int, seed: int = 0
 ) -> list[dict[str, Any]]:
     """In this process: each case on each device count, timed chunk by chunk, alternating."""
-    from qdrl.experiment import build_run, compile_chunk, initial_state, run_chunk
 
     records = []
     for name in names:

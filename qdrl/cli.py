@@ -7,15 +7,18 @@ import contextlib
 import json
 import os
 import sys
+import tempfile
+import threading
+import time
+import traceback
 from pathlib import Path
+
+from qdrl import quiet, specs
+from qdrl.config import ConfigError
 
 
 def _report_crash(exc: BaseException, run_dir: Path | None, argv: list[str]) -> int:
     """Writes the traceback to `run_dir`/error.log (else a temporary file) and prints one line."""
-    import tempfile
-    import time
-    import traceback
-
     text = (
         f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} qdrl {' '.join(argv)}\n"
         + "".join(traceback.format_exception(exc))
@@ -42,8 +45,6 @@ def _interrupted() -> int:
     Python's shutdown would stop that thread inside XLA, which aborts the process
     with a C++ error instead of exiting.
     """
-    import threading
-
     if any(t.name == "qdrl-worker" and t.is_alive() for t in threading.enumerate()):
         sys.stdout.flush()
         sys.stderr.flush()
@@ -56,43 +57,32 @@ def _writing(out_dir: Path) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from qdrl import checkpoint, specs
-    from qdrl.config import ConfigError
-    from qdrl.experiment import (
-        RunInterrupted,
-        check_spec_file,
-        default_out_dir,
-        resume_command,
-        run_spec,
-    )
-    from qdrl.sweeps import parse_seeds, run_seeds
+    from qdrl import checkpoint, experiment, placement, sweeps  # jax and the algorithms: seconds
 
     if args.devices is not None:
         args.set = [*args.set, f"experiment.devices={args.devices}"]
-    out_dir = Path(args.out) if args.out else default_out_dir(args.spec)
-    resume = resume_command(args.spec, args.set, out_dir, args.seeds)
+    out_dir = Path(args.out) if args.out else experiment.default_out_dir(args.spec)
+    resume = experiment.resume_command(args.spec, args.set, out_dir, args.seeds)
     try:
         if args.distributed or any(v is not None for v in (args.coordinator, args.num_processes, args.process_id)):
-            from qdrl.placement import initialize_distributed
-
-            initialize_distributed(args.coordinator, args.num_processes, args.process_id)
+            placement.initialize_distributed(args.coordinator, args.num_processes, args.process_id)
         specs.resolve(args.spec)
-        seeds = parse_seeds(args.seeds) if args.seeds is not None else None
+        seeds = sweeps.parse_seeds(args.seeds) if args.seeds is not None else None
         # Libraries print notices on stdout (mujoco-mjx: "Failed to import warp");
         # stdout carries only the JSON summary (with --check: the resolved spec).
         with contextlib.redirect_stdout(sys.stderr):
             if args.check:
-                resolved = check_spec_file(args.spec, args.set)
+                resolved = experiment.check_spec_file(args.spec, args.set)
             elif seeds is not None:
-                summary = run_seeds(
+                summary = sweeps.run_seeds(
                     args.spec, seeds, args.set, out_dir, args.resume, args.overwrite, on_start=_writing
                 )
             else:
-                summary = run_spec(args.spec, args.set, out_dir, args.resume, args.overwrite, on_start=_writing)
+                summary = experiment.run_spec(args.spec, args.set, out_dir, args.resume, args.overwrite, on_start=_writing)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
-    except RunInterrupted as e:
+    except experiment.RunInterrupted as e:
         print(f"qdrl: {e}", file=sys.stderr)
         if e.checkpoint is not None:
             print(f"qdrl: resume with: {resume}", file=sys.stderr)
@@ -112,52 +102,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
-    with contextlib.redirect_stdout(sys.stderr):  # mujoco-mjx prints import notices
-        import brax.envs  # noqa: F401
-    from qdrl import specs
-    from qdrl.algorithms import ALGORITHMS
-    from qdrl.envs import PURE_JAX_ENVS
-    from qdrl.envs.brax import BACKENDS, brax_env_names
-
-    directory = specs.spec_dir()
-    names = specs.spec_names()
-    where = f" ({directory}; run one by name: qdrl run NAME)" if directory is not None else ""
-    print(f"specs{where}:")
-    width = max((len(n) for n in names), default=0)
-    for name in names:
-        assert directory is not None
-        print(f"  {name:<{width}}  {_shorten(specs.describe(directory / f'{name}.toml'))}".rstrip())
-    print("algorithms:")
-    width = max(len(n) for n in ALGORITHMS)
-    for name in sorted(ALGORITHMS):
-        print(f"  {name:<{width}}  {ALGORITHMS[name].description}".rstrip())
-    from qdrl.qd.emitters.registry import EMITTER_KINDS
-
-    print("emitter kinds (the [emitter] kind of QD specs, or each [[emitters]] of a pool):")
-    for name, kind in sorted(EMITTER_KINDS.items()):
-        print(f"  {name}: {kind.description}")
-    print("tasks:")
-    from qdrl.tasks import TASKS
-
-    print(f"  QD tasks (the [task] section of QD specs): {', '.join(sorted(TASKS))}")
-    print(f"  pure-JAX environments: {', '.join(PURE_JAX_ENVS)}")
-    print(f"  brax environments ({', '.join(BACKENDS)} backends): {', '.join(brax_env_names())}")
+    with contextlib.redirect_stdout(sys.stderr):  # brax and mujoco-mjx print import notices
+        from qdrl import catalogue
+    print(catalogue.listing())
     return 0
 
 
-def _shorten(text: str, width: int = 90) -> str:
-    """`text` cut at a word boundary to at most `width` characters ("..." marks a cut)."""
-    if len(text) <= width:
-        return text
-    return text[: width - 3].rsplit(" ", 1)[0].rstrip(",;:(") + "..."
-
-
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from qdrl.bench import run_bench
+    from qdrl import bench
 
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
-            results = run_bench(args.name, quick=args.quick, out=args.out, seed=args.seed, config=args.config)
+            results = bench.run_bench(args.name, quick=args.quick, out=args.out, seed=args.seed, config=args.config)
     except ValueError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
@@ -166,13 +122,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from qdrl.render import render
-    from qdrl.runs import RunError, load_run
+    from qdrl import render, runs
 
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
-            result = render(load_run(args.dir), args.cell, args.out)
-    except RunError as e:
+            result = render.render(runs.load_run(args.dir), args.cell, args.out)
+    except runs.RunError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
     print(json.dumps(result, indent=2))
@@ -180,15 +135,15 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_reevaluate(args: argparse.Namespace) -> int:
-    from qdrl.runs import RunError, load_run
-
     if args.samples < 1:
         print(f"qdrl: error: --samples: expected a positive integer, got {args.samples}", file=sys.stderr)
         return 2
+    from qdrl import runs
+
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
-            report = load_run(args.dir).reevaluate(args.samples, args.seed)
-    except RunError as e:
+            report = runs.load_run(args.dir).reevaluate(args.samples, args.seed)
+    except runs.RunError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
     print(json.dumps(report, indent=2))
@@ -196,16 +151,14 @@ def _cmd_reevaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from qdrl.runs import RunError
-
     if not 0.0 < args.confidence < 1.0:
         print(f"qdrl: error: --confidence: expected a number in (0, 1), got {args.confidence}", file=sys.stderr)
         return 2
-    try:
-        from qdrl.report import report
+    from qdrl import report, runs
 
-        result = report(args.dirs, args.out, confidence=args.confidence)
-    except RunError as e:
+    try:
+        result = report.report(args.dirs, args.out, confidence=args.confidence)
+    except runs.RunError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
     print(json.dumps(result, indent=2))
@@ -214,8 +167,6 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `qdrl` console script."""
-    from qdrl import quiet
-
     quiet()  # dependencies' import notices and MUJOCO_LOG.TXT (qdrl/_quiet.py)
     parser = argparse.ArgumentParser(prog="qdrl", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)

@@ -29,6 +29,8 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.monitoring
+from jax.experimental.compilation_cache import compilation_cache as cc
 
 __all__ = ["cache_dir", "cache_hits", "enabled", "estimate", "record", "spec_key"]
 
@@ -57,7 +59,6 @@ def enabled(on: bool = True) -> Iterator[str | None]:
     otherwise `cache_dir() / "jax"` is used. Off when `on` is False or the
     environment says `QDRL_COMPILE_CACHE=0`. The previous settings come back on exit.
     """
-    from jax.experimental.compilation_cache import compilation_cache as cc
 
     config: Any = jax.config  # its flags are attributes that the stubs do not list
     before = (config.jax_compilation_cache_dir, config.jax_enable_compilation_cache)
@@ -88,7 +89,6 @@ def enabled(on: bool = True) -> Iterator[str | None]:
 @contextlib.contextmanager
 def cache_hits() -> Iterator[dict[str, int]]:
     """Counts, within the block, compilations looked up in the persistent cache and found there."""
-    import jax.monitoring
 
     counts = {"lookups": 0, "hits": 0}
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 import math
 import tomllib
 import types
@@ -361,7 +362,6 @@ def check_params(
     Unknown names and values the annotations refuse raise ConfigError naming
     `section.<name>` (unknown ones "for <owner>"); `fn` is not called.
     """
-    import inspect
 
     sig = inspect.signature(fn)
     hints = _hints(fn)

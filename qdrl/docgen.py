@@ -16,7 +16,9 @@ import textwrap
 from collections.abc import Sequence
 from typing import Any
 
+from qdrl import specs
 from qdrl.config import _toml_value, describe, field_default, table_keys
+from qdrl.tasks import TASKS
 
 __all__ = ["field_comments", "keys_table", "specs_table", "tasks_table"]
 
@@ -108,7 +110,6 @@ def _bounds(low: Sequence[float], high: Sequence[float]) -> str:
 def tasks_table(names: Sequence[str] | None = None) -> str:
     """A Markdown table of the QD tasks (`qdrl.tasks.TASKS`), each built with its defaults:
     parameters, descriptor names and bounds, QD offset, and the builder's first docstring line."""
-    from qdrl.tasks import TASKS
 
     rows = []
     for name in names or sorted(TASKS):
@@ -132,7 +133,6 @@ def tasks_table(names: Sequence[str] | None = None) -> str:
 
 def specs_table(prefixes: Sequence[str]) -> str:
     """A Markdown table of the packaged specs whose name starts with one of `prefixes`."""
-    from qdrl import specs
 
     directory = specs.spec_dir()
     names = [n for n in specs.spec_names() if any(n.startswith(p) for p in prefixes)]

@@ -102,9 +102,10 @@ def check_spec(spec: Mapping[str, Any]) -> CheckedSpec:
         raise ConfigError("experiment: missing section; expected [experiment] with algorithm = ...")
     experiment = check_table(spec["experiment"], "experiment")
     name = experiment.get("algorithm")
+    if name is None:
+        raise ConfigError(f"experiment.algorithm: missing; expected one of {algorithm_names()}")
     if not isinstance(name, str):
-        got = "nothing" if name is None else repr(name)
-        raise ConfigError(f"experiment.algorithm: expected one of {algorithm_names()}, got {got}")
+        raise ConfigError(f"experiment.algorithm: expected one of {algorithm_names()}, got {name!r}")
     arrays = recipe(name).array_sections
     for name, table in spec.items():
         if not isinstance(table, list) and name not in arrays:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+from jax.profiler import ProfileData
 
 __all__ = [
     "HEAVY_OPS", "hlo_profile", "hlo_summary", "kernel_summary", "module_texts", "per_iteration",
@@ -209,7 +210,6 @@ def hlo_summary(texts: dict[str, str], iterations: int) -> dict[str, Any]:
 
 def _trace_events(path: str | Path) -> tuple[str, list[tuple[str, str, float, float]]]:
     """(where the events come from, [(module, op, start_ns, duration_ns)]) of an xplane file."""
-    from jax.profiler import ProfileData
 
     planes = list(ProfileData.from_file(str(path)).planes)
     device = [p for p in planes if p.name.startswith("/device:GPU")]

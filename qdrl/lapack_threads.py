@@ -21,6 +21,9 @@ import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+
 __all__ = ["single_threaded_lapack"]
 
 _RTLD_NOLOAD = getattr(os, "RTLD_NOLOAD", 4)  # glibc's value where os lacks it
@@ -58,8 +61,6 @@ def _loaded_openblas() -> list[tuple[Callable[[int], None], Callable[[], int]]]:
 
 @functools.cache
 def _libraries() -> tuple[tuple[Callable[[int], None], Callable[[], int]], ...]:
-    import jax
-    import jax.numpy as jnp
 
     # jax loads its LAPACK (SciPy's OpenBLAS) on the first LAPACK call.
     jax.block_until_ready(jnp.linalg.eigh(jnp.eye(2)))

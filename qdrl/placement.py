@@ -21,11 +21,14 @@ unchanged: the one-device programs are exactly those of a run without this modul
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+from jax._src import distributed
+from jax.experimental import multihost_utils
 from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
@@ -149,7 +152,6 @@ class Placement:
         """`tree` as host NumPy arrays on every process (arrays split across processes gathered)."""
         if self.mesh is None or jax.process_count() == 1:
             return jax.device_get(tree)
-        from jax.experimental import multihost_utils
 
         return jax.tree.map(
             lambda x: jax.device_get(x) if not isinstance(x, jax.Array) or x.is_fully_replicated
@@ -199,7 +201,6 @@ def barrier(name: str, timeout_s: int = 3600) -> None:
     """
     if jax.process_count() == 1:
         return
-    from jax._src import distributed  # the client of jax.distributed.initialize
 
     client = distributed.global_state.client
     if client is not None:
@@ -221,7 +222,6 @@ def initialize_distributed(
     Kubernetes, Cloud TPU). Every process then sees every process's devices; CPU
     collectives across processes go through gloo (jax's default).
     """
-    import os
 
     env = os.environ
     coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS") or None

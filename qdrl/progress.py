@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from tqdm import tqdm
+
 __all__ = ["RunProgress"]
 
 
@@ -26,7 +28,6 @@ class RunProgress:
         """Shows the compile timer; `estimate`: (seconds, measured on this very spec) or None."""
         if not self.enabled:
             return
-        from tqdm import tqdm
 
         if estimate is None:
             self._note = " (first run of this spec here: no estimate yet)"
@@ -52,7 +53,6 @@ class RunProgress:
     def start(self, done: int) -> None:
         if not self.enabled:
             return
-        from tqdm import tqdm
 
         steps = self.unit == "env_steps"
         self._bar = tqdm(

@@ -21,7 +21,13 @@ from typing import Any
 
 import jax
 import numpy as np
+from brax.io import html
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
+from qdrl.envs.brax import WALLED_ENVS, BraxEnv
+from qdrl.envs.point_maze import PointMazeEnv
 from qdrl.plotting import Wall, draw_walls, env_walls
 from qdrl.runs import LoadedRun, RunError, Trajectory
 
@@ -31,8 +37,6 @@ __all__ = ["render", "write_html", "write_path_png"]
 
 def _kind(run: LoadedRun) -> tuple[str, tuple[str, ...]]:
     """("brax" | "point_maze", the output suffixes this task supports, default first)."""
-    from qdrl.envs.brax import WALLED_ENVS, BraxEnv
-    from qdrl.envs.point_maze import PointMazeEnv
 
     env = run.require_qd("render").task.env
     if isinstance(env, PointMazeEnv):
@@ -83,7 +87,6 @@ def render(run: LoadedRun, cell: int | None = None, out: str | Path | None = Non
 
 def write_html(sys: Any, episode: Trajectory, path: Path) -> Path:
     """brax's HTML viewer of `episode` (its `states`: link poses, (T, ...)) up to its end."""
-    from brax.io import html
 
     if episode.states is None:
         raise RunError("render: expected an episode rolled out with brax link poses (record)")
@@ -108,9 +111,6 @@ def write_path_png(
     title: str = "",
 ) -> Path:
     """A PNG of the episode's x-y path (its state descriptors) over the walls, seen from above."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Rectangle
 
     xy = np.asarray(episode.state_descriptors)[: episode.length + 1, :2]
     lo = np.minimum(np.asarray(low, float)[:2], xy.min(axis=0))

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import numpy as np
+import pandas as pd
 
 from qdrl import checkpoint
 from qdrl.algorithms.base import Algorithm, QDParts
@@ -149,7 +150,6 @@ def load_metrics(*paths: str | Path) -> pd.DataFrame:
         df = qdrl.load_metrics("runs/map_elites_arm", "runs/cvt_map_elites_arm")
         df.groupby(["spec", "evaluations"]).qd_score.mean()
     """
-    import pandas as pd
 
     frames = []
     for path in find_runs(list(paths)):
@@ -169,7 +169,6 @@ def load_repertoires(*paths: str | Path) -> pd.DataFrame:
     Reads repertoire.csv / archive.csv; a run without one (interrupted) is read from
     its latest checkpoint.
     """
-    import pandas as pd
 
     frames = []
     for path in find_runs(list(paths)):
@@ -187,7 +186,6 @@ class LoadedRun:
     the run did not finish), and on demand its `repertoire`, `table`, elites and rollouts."""
 
     def __init__(self, path: Path) -> None:
-        import pandas as pd
 
         if not path.is_dir():
             raise RunError(f"{path}: no such directory; expected a run directory written by `qdrl run`")
@@ -357,7 +355,6 @@ class LoadedRun:
     @property
     def table(self) -> pd.DataFrame:
         """One row per elite: `cell`, `fitness`, `descriptor_*` and `centroid_*` (cell order)."""
-        import pandas as pd
 
         return pd.DataFrame(to_table(self.repertoire))
 

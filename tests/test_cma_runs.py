@@ -172,13 +172,21 @@ def test_mega_emitters_refuse_a_task_without_gradients_before_compiling(name: st
 
 
 def test_the_emitter_asks_for_the_gradients_it_needs() -> None:
-    omg, _, _ = build_run(_spec("omg_mega_lp_sphere"))
-    cma, _, _ = build_run(_spec("cma_mega_lp_sphere"))
-    task = omg.qd_task  # type: ignore[attr-defined]
+    from qdrl.algorithms.base import BuildContext
+    from qdrl.algorithms.qd import registry_source
+
+    def loop_scoring(name: str) -> tuple[Any, Any]:
+        run, _, _ = build_run(_spec(name))
+        assert run.qd is not None
+        parts = registry_source().build(run.sections["emitter"], run.qd.task, BuildContext(name, 0))
+        return parts.scoring_fn, run.qd.task
+
     # OMG-MEGA reads every offspring's gradients: the loop evaluates with them
-    assert omg._loop_scoring() is task.gradient_scoring_fn  # type: ignore[attr-defined]
+    scoring, task = loop_scoring("omg_mega_lp_sphere")
+    assert scoring is task.gradient_scoring_fn
     # CMA-MEGA asks for the gradients at theta itself: the loop's evaluations carry none
-    assert cma._loop_scoring() is cma.qd_task.scoring_fn  # type: ignore[attr-defined]
+    scoring, task = loop_scoring("cma_mega_lp_sphere")
+    assert scoring is task.scoring_fn
 
 
 def test_algorithm_names_are_defaults_of_one_run() -> None:
@@ -196,7 +204,7 @@ def test_algorithm_names_are_defaults_of_one_run() -> None:
     # the spec's keys win over the algorithm's defaults; another kind takes none of them
     opt, _, _ = build_run({**base, "emitter": {"kind": "cma_optimizing"}})
     assert (opt.sections["emitter"].ranker, opt.sections["emitter"].restart_rule) == ("obj", "no_improvement")
-    assert "normalised_qd_score" in run.progress_keys
+    assert "normalised_qd_score" in run.progress.keys
     # the covariance is decomposed on the generations rule unless the spec says otherwise
     assert emitter.eigen_gap == "generations"
     for gap in ("evaluations", 7):

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from qdrl import checkpoint
-from qdrl.config import ConfigError, load_toml
 from qdrl.algorithms.skills import skill_task
+from qdrl.config import ConfigError, load_toml
 from qdrl.experiment import build_run, run
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 import optax
 
+from qdrl import nets
 from qdrl.config import OneOf, PositiveInt
 from qdrl.types import Array
 
@@ -35,7 +36,6 @@ def check_size(name: str, value: object) -> None:
 
 def activation_names() -> list[str]:
     """The activations a network config may name (`qdrl.nets.ACTIVATIONS`)."""
-    from qdrl import nets
 
     return sorted(nets.ACTIVATIONS)
 

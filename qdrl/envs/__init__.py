@@ -5,6 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 from qdrl.envs.base import Env, EnvState, auto_reset, reset_batch, step_batch
+from qdrl.envs.point import PointEnv
+from qdrl.envs.point_maze import PointMazeEnv
 
 PURE_JAX_ENVS = ("point", "point_maze")
 JUMANJI_ENVS = ("snake",)
@@ -23,12 +25,8 @@ def make(
     """The environment called `name`, truncated at `episode_length`; brax ones on `backend`,
     recording `state_descriptor` ("xy", "feet_contact"; the others have their own)."""
     if name == "point":
-        from qdrl.envs.point import PointEnv
-
         return PointEnv(episode_length=episode_length, **kwargs)
     if name == "point_maze":
-        from qdrl.envs.point_maze import PointMazeEnv
-
         return PointMazeEnv(episode_length=episode_length, **kwargs)
     if name == "snake":
         from qdrl.envs.jumanji import snake_env

@@ -39,6 +39,8 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import jumanji
+from jumanji import specs
 
 from qdrl.envs.base import Env
 from qdrl.types import Array, PRNGKey
@@ -132,8 +134,6 @@ class JumanjiEnv(Env):
         """Wrap `env`: a jumanji environment, or a registered id (e.g. "Snake-v1") made
         with `jumanji.make(env, **env_kwargs)`.
         """
-        import jumanji
-        from jumanji import specs
 
         if episode_length <= 0:
             raise ValueError(f"episode_length must be a positive integer, got {episode_length}")

@@ -15,6 +15,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure, FigureBase
+from matplotlib.ticker import FuncFormatter, MaxNLocator
 
 # Columns that count progress rather than measure it; never plotted as y by default.
 COUNTER_KEYS = frozenset(
@@ -102,7 +103,6 @@ def _compact(value: float, _pos: int | None = None) -> str:
 
 def _tidy_x(ax: Axes) -> None:
     """At most 6 x ticks with compact labels, so labels of large counts never overlap."""
-    from matplotlib.ticker import FuncFormatter, MaxNLocator
 
     ax.xaxis.set_major_locator(MaxNLocator(nbins=5, min_n_ticks=2))
     ax.xaxis.set_major_formatter(FuncFormatter(_compact))

@@ -28,6 +28,7 @@ from qdrl.plotting._common import (
     _points,
     _tidy_x,
 )
+from qdrl.stats import bootstrap_ci
 
 __all__ = ["default_x_keys", "default_y_keys", "plot_comparison", "plot_curves"]
 
@@ -210,7 +211,6 @@ def _draw_comparison(
     ax: Axes, groups: Mapping[str, Sequence[Rows]], x_key: str, y_key: str, confidence: float
 ) -> None:
     """One panel of `plot_comparison`: a mean line (and a band for several seeds) per name."""
-    from qdrl.stats import bootstrap_ci
 
     for index, (name, seeds) in enumerate(groups.items()):
         colour = f"C{index % 10}"

@@ -7,8 +7,12 @@ from pathlib import Path
 from typing import Any, overload
 
 import numpy as np
+from matplotlib import colormaps
 from matplotlib.axes import Axes
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Normalize
 from matplotlib.figure import Figure, FigureBase
+from scipy.spatial import cKDTree
 
 from qdrl.plotting._common import FigT, _names, _one_panel, _panels
 
@@ -68,8 +72,6 @@ def _draw_grid(
 def _colour_scale(repertoires: Sequence[Any], vmin: float | None, vmax: float | None, cmap: str) -> tuple[Any, Any]:
     """A colour normalisation over the filled cells of every repertoire, and the colormap
     with empty cells (NaN) white."""
-    from matplotlib import colormaps
-    from matplotlib.colors import Normalize
 
     values = np.concatenate([np.asarray(r.fitnesses, dtype=np.float64).ravel() for r in repertoires])
     shown = values[np.isfinite(values)]
@@ -124,7 +126,6 @@ def _draw_repertoire(
     if grid_shape is not None:
         _draw_grid(ax, fitnesses, grid_shape, (dx, dy), grid_lo, grid_hi, colours, norm)
     elif centroids is not None and num_dims == 2:
-        from scipy.spatial import cKDTree
 
         xs = np.linspace(box[0], box[1], _CVT_RESOLUTION)
         ys = np.linspace(box[2], box[3], _CVT_RESOLUTION)
@@ -194,7 +195,6 @@ def _repertoire_panel(
     ax: Axes | None,
 ) -> Path | Axes:
     """`plot_repertoire`, untyped by overloads, for the functions built on it."""
-    from matplotlib.cm import ScalarMappable
 
     norm, colours = _colour_scale([repertoire], vmin, vmax, cmap)
 
@@ -361,7 +361,6 @@ def plot_repertoires(
     Raises:
       ValueError: if `repertoires` is empty.
     """
-    from matplotlib.cm import ScalarMappable
 
     if not repertoires:
         raise ValueError("repertoires is empty; nothing to draw")

@@ -7,8 +7,11 @@ from pathlib import Path
 from typing import Any, overload
 
 import numpy as np
+from matplotlib import colormaps
 from matplotlib.axes import Axes
+from matplotlib.colors import Normalize
 from matplotlib.figure import Figure, FigureBase
+from matplotlib.patches import Polygon
 
 from qdrl.plotting._common import FigT, _names, _panels
 from qdrl.plotting.repertoires import _draw_grid
@@ -60,7 +63,6 @@ def draw_walls(ax: Axes, walls: Sequence[Wall], dims: tuple[int, int] = (0, 1)) 
     Returns:
       `ax`.
     """
-    from matplotlib.patches import Polygon
 
     if tuple(dims) != (0, 1):
         return ax
@@ -190,8 +192,6 @@ def plot_skills(
     Raises:
       ValueError: on mismatched shapes, both `ax` and `fig`, or `ax` with `archive`.
     """
-    from matplotlib import colormaps
-    from matplotlib.colors import Normalize
 
     traj = np.asarray(trajectories, dtype=np.float64)
     valid = np.asarray(mask, dtype=np.float64)

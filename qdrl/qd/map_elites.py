@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.sharding import PartitionSpec as P
 
 from qdrl.placement import BATCH_AXIS, Placement
 from qdrl.qd.base import TIME_MAJOR_EXTRAS, AddResult, Emitter, Evaluation, Repertoire, ScoringFn
@@ -161,7 +162,6 @@ def shard_scoring(scoring_fn: ScoringFn, placement: Placement) -> ScoringFn:
     """
     if placement.mesh is None:
         return scoring_fn
-    from jax.sharding import PartitionSpec as P
 
     def local(genotypes: Genotype, key: PRNGKey) -> Evaluation:
         ev = scoring_fn(genotypes, key)

@@ -19,6 +19,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import moocore
 import numpy as np
 
 from qdrl.qd.pareto import hypervolume_2d, hypervolume_exact, non_dominated
@@ -77,7 +78,6 @@ def mo_metrics(container: Any, reference: Sequence[float]) -> dict[str, Array]:
 
 def global_front(container: Any) -> np.ndarray:
     """(k, M) fitnesses of the non-dominated set of every solution a container holds (host)."""
-    import moocore
 
     f = np.asarray(container.fitnesses, np.float64).reshape(-1, int(container.num_objectives))
     f = f[np.all(np.isfinite(f), axis=1)]

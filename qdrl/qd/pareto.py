@@ -21,6 +21,7 @@ from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
+import moocore
 import numpy as np
 
 from qdrl.types import Array, PRNGKey
@@ -243,7 +244,6 @@ def hypervolume_exact(
     Rows outside `mask`, rows with a NaN or -inf, and rows that do not strictly
     dominate the reference in every objective are left out (they add nothing).
     """
-    import moocore
 
     p = np.asarray(points, np.float64)
     ref = np.asarray(reference, np.float64)

@@ -23,6 +23,8 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Annotated, Any, Literal
 
+import jax
+
 from qdrl.config import ConfigError, OneOf, build, check_table, coerce
 from qdrl.qd.base import Emitter, ScoringFn
 from qdrl.qd.emitters.cma import CMAEmitter, CMAEmitterConfig
@@ -96,7 +98,6 @@ def _cma(config: CMAEmitterConfig, ctx: EmitterContext) -> CMAEmitter:
 
 
 def _flat_size(ctx: EmitterContext) -> int:
-    import jax
 
     return int(sum(int(x.size) for x in jax.tree.leaves(ctx.genotype_example)))
 
