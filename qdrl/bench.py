@@ -21,10 +21,11 @@ import jax.numpy as jnp
 
 from qdrl import bench_scaling, envs
 from qdrl import hlo_profile as profiler
-from qdrl.agents import AGENTS
+from qdrl.agents import AGENTS, SACConfig
 from qdrl.agents.dads import DADSConfig
 from qdrl.agents.diayn import DIAYNConfig
-from qdrl.algorithms.skills import skill_trainer_builder
+from qdrl.agents.skill_discovery import make_skill_discovery
+from qdrl.agents.smerl import SMERLConfig
 from qdrl.compiling import compile_timed
 from qdrl.off_policy import TrainConfig, make_trainer
 from qdrl.qd.emitters.ga import isoline_emitter
@@ -422,6 +423,24 @@ def run_bench(
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps(record, indent=2) + "\n")
     return record
+
+
+def skill_trainer_builder(
+    algorithm: str, hidden: tuple[int, ...] = (256, 256), num_skills: int = 10
+) -> Callable[[Any, TrainConfig], Any]:
+    """`(env, train_config) -> Trainer` of a skill-discovery `algorithm` ("diayn", "dads",
+    "smerl_diayn", "smerl_dads") with default settings; SAC and the skill model both use `hidden`."""
+    if algorithm not in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
+        raise ValueError(f"unknown skill-discovery algorithm {algorithm!r}")
+    smerl = SMERLConfig() if algorithm.startswith("smerl") else None
+    cls = DADSConfig if algorithm.endswith("dads") else DIAYNConfig
+
+    def build(env: Any, config: TrainConfig) -> Any:
+        skills = cls(num_skills=num_skills, hidden=hidden, extrinsic_scale=0.0 if smerl is None else 1.0)
+        sd = make_skill_discovery(env, SACConfig(hidden=hidden), skills, smerl)
+        return make_trainer(sd.env, sd.agent, config, sd.storage)
+
+    return build
 
 
 @_register("skills")

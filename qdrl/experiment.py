@@ -40,6 +40,7 @@ from qdrl import (
     plotting,
     specs,
 )
+from qdrl._version import __version__
 from qdrl.algorithms import ALGORITHMS, algorithm_names, recipe
 from qdrl.algorithms.base import (
     Algorithm,
@@ -434,7 +435,10 @@ def _loop(
     alg, metrics_path = s.alg, s.out_dir / "metrics.csv"
 
     def save(chunk: int, row: Mapping[str, Any], wall_s: float) -> Path:
-        meta = {"chunk": chunk, "env_steps": int(row["env_steps"]), "wall_s": wall_s, "run_s": s.run_s}
+        meta = {
+            "chunk": chunk, "env_steps": int(row["env_steps"]), "wall_s": wall_s, "run_s": s.run_s,
+            "qdrl_version": __version__,
+        }
         host = placement.fetch(state)  # every process takes part: parts may live in others
         if not s.primary:
             return s.ckpt_dir / checkpoint.step_name(chunk + 1)
@@ -554,7 +558,7 @@ def run(
             raise RunInterrupted(out_dir, *_newest_log_point(s.ckpt_dir), alg.num_chunks) from None
         except checkpoint.CheckpointError as e:
             progress.close()
-            raise ConfigError(f"--resume: {e}") from None
+            raise ConfigError(f"--resume: {e}{_written_by(s.ckpt_dir)}") from None
         startup_s = time.perf_counter() - t0
         placement.barrier("compiled")  # processes that compiled faster wait for the others
         progress.compiled(startup_s)
@@ -573,6 +577,20 @@ def run(
         finally:
             progress.close()
     return _summary(s, state)
+
+
+def _written_by(ckpt_dir: Path) -> str:
+    """Which qdrl wrote the newest checkpoint, when it is not this one (a checkpoint that no
+    longer loads was most likely written by a qdrl whose state layout differs)."""
+    for path in checkpoint.checkpoints(ckpt_dir):
+        try:
+            version = checkpoint.read_metadata(path).get("qdrl_version", "0.1.0")
+        except (checkpoint.CheckpointError, ValueError, TypeError):
+            continue
+        if version != __version__:
+            return f"; the checkpoints were written by qdrl {version}, this is qdrl {__version__}"
+        return ""
+    return ""
 
 
 def _fmt(x: float) -> str:

@@ -3,10 +3,9 @@
 On CPU, jax hands `jnp.linalg.eigh` and the other LAPACK routines to the
 OpenBLAS that SciPy ships. OpenBLAS starts as many threads as there are cores;
 for the small matrices of CMA-ES (n <= a few hundred) they only wait on each
-other, and on a loaded 2-core machine a batch of 15 eigendecompositions of
-100 x 100 took 390 ms with them and 7.6 ms with one thread (measured 2026-11,
-jax 0.10.2). pyribs wraps its CMA-ES in `threadpoolctl.threadpool_limits(1)` for
-the same reason. `single_threaded_lapack` sets the loaded OpenBLAS libraries to
+other, which on a loaded machine makes eigendecompositions far slower than with
+one thread (figures in docs/benchmarks.md). pyribs wraps its CMA-ES in
+`threadpoolctl.threadpool_limits(1)` for the same reason. `single_threaded_lapack` sets the loaded OpenBLAS libraries to
 one thread and restores them afterwards; where none is found (another BLAS,
 another OS) it does nothing. XLA's own kernels (matmuls, convolutions) do not
 use OpenBLAS and are not affected.

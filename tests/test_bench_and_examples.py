@@ -74,7 +74,15 @@ def test_bench_map_elites_quick(
     hlo = result["hlo"]
     assert set(hlo) == {"cpu_optimized", "cpu_lowered", "cuda_lowered"}
     cuda = hlo["cuda_lowered"]["ops"]
-    assert "conditional" not in cuda and cuda["while"] == 1 and cuda["scatter"] == 5
+    assert "conditional" not in cuda and cuda["while"] == 1
+    # Against the recorded comparison with QDax (same container): bounds, not exact
+    # counts, so that an XLA upgrade passes and a step doing much more work fails.
+    recorded = json.loads((ROOT / "benchmarks/results/map_elites_arm_vs_qdax.json").read_text())
+    rec = recorded["summary"]["grid32"]["hlo_per_step"]["cuda_lowered"]
+    scatters = cuda.get("scatter", 0)
+    assert scatters <= rec["qdrl"]["scatter"] + 1 and scatters <= 1.5 * rec["qdax"]["scatter"], (scatters, rec)
+    executed = hlo["cuda_lowered"]["kernels"]  # lowered: every executed op of a step
+    assert abs(executed - rec["qdrl"]["kernels"]) <= 0.25 * rec["qdrl"]["kernels"], (executed, rec["qdrl"])
     assert 0 < hlo["cpu_optimized"]["kernels"] < hlo["cpu_optimized"]["instructions"]
 
 

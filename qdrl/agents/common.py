@@ -23,11 +23,6 @@ def adam_step(
     return optax.apply_updates(params, optax.tree.scale(-lr, updates)), opt_state
 
 
-def is_real(value: object) -> bool:
-    """True for a finite int or float (bools excluded)."""
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def check_size(name: str, value: object) -> None:
     """Raise ValueError unless `value` is a positive int (an observation or action size)."""
     if not (isinstance(value, int) and not isinstance(value, bool) and value > 0):

@@ -43,7 +43,6 @@ from qdrl.algorithms.qd import (
     parse_task_and_qd,
     qd_recipe,
     registry_source,
-    scoring_factory,
 )
 from qdrl.algorithms.task_spec import make_task_of
 from qdrl.config import ConfigError, NonNegativeFloat, NonNegativeInt, PositiveInt, UnitFloat, build
@@ -52,6 +51,7 @@ from qdrl.qd.emitters.ga import sbx_emitter
 from qdrl.qd.map_elites import MapElites
 from qdrl.qd.mo_metrics import exact_hypervolumes, global_front, mo_metrics
 from qdrl.qd.populations import Survival, pareto_population
+from qdrl.qd.repertoires.export import export_solutions, write_front
 from qdrl.qd.repertoires.mome import mome_repertoire
 from qdrl.tasks import TASKS, Task
 
@@ -150,8 +150,8 @@ def mo_finish(container: Any, out_dir: Path, task: Task, export_name: str, algor
     label, title = algorithm, f"{algorithm} on {task.name}"
     front = global_front(container)
     hv = exact_hypervolumes(container, ref)
-    _write_front(front, out_dir / "front.csv")
-    _export(container, out_dir, export_name)
+    write_front(front, out_dir / "front.csv")
+    export_solutions(container, out_dir, export_name)
     plotting.plot_pareto_front(
         {label: front}, out_dir / "plots" / "front.png", reference=ref,
         true_front=None if task.true_front is None else task.true_front(), title=title,
@@ -175,34 +175,6 @@ def mo_finish(container: Any, out_dir: Path, task: Task, export_name: str, algor
         summary["true_front_hypervolume"] = task.true_hypervolume
         summary["hypervolume_ratio"] = hv["global_hypervolume"] / task.true_hypervolume
     return summary
-
-
-def _write_front(front: np.ndarray, path: Path) -> None:
-    header = ",".join(f"objective_{k}" for k in range(front.shape[1]))
-    np.savetxt(path, front, delimiter=",", header=header, comments="")
-
-
-def _export(container: Any, out_dir: Path, name: str) -> None:
-    """`<name>.npz` (as `export_npz`: fitnesses, descriptors, genotype leaves named `genotypes` +
-    key path, centroids) and `<name>.csv`, one row per stored solution (cell and slot, or slot)."""
-    fit = np.asarray(container.fitnesses)
-    desc = np.asarray(container.descriptors)
-    arrays: dict[str, np.ndarray] = {"fitnesses": fit, "descriptors": desc}
-    for key_path, leaf in jax.tree_util.tree_flatten_with_path(container.genotypes)[0]:
-        arrays["genotypes" + jax.tree_util.keystr(key_path)] = np.asarray(leaf)
-    if hasattr(container, "centroids"):
-        arrays["centroids"] = np.asarray(container.centroids)
-    np.savez_compressed(out_dir / f"{name}.npz", **arrays)  # type: ignore[arg-type]
-    m, d = fit.shape[-1], desc.shape[-1]
-    flat_f, flat_d = fit.reshape(-1, m), desc.reshape(-1, d)
-    keep = np.all(np.isfinite(flat_f), axis=1)
-    slots = fit.shape[1] if fit.ndim == 3 else len(fit)
-    index = np.arange(len(flat_f))
-    cols = [index // slots, index % slots, *flat_f.T, *flat_d.T]
-    names = ["cell", "slot", *(f"objective_{k}" for k in range(m)), *(f"descriptor_{k}" for k in range(d))]
-    table = np.stack(cols, axis=1)[keep]
-    fmt = ["%d", "%d", *(["%.9g"] * (m + d))]
-    np.savetxt(out_dir / f"{name}.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)
 
 
 # -- MOME: MAP-Elites with a Pareto front per cell --
@@ -237,7 +209,7 @@ MOME = qd_recipe(
 # -- NSGA-II and SPEA2: a population with its survival rule --
 
 
-def _parse_population(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
+def _parse_population(spec: Mapping[str, Any], exp: ExperimentConfig, survival: Survival) -> Sections:
     """The checked sections of an NSGA-II or SPEA2 spec; `qd.init_batch_size` defaults to the
     population size."""
     population = build(PopulationConfig, spec.get("population", {}), "population")
@@ -248,7 +220,7 @@ def _parse_population(spec: Mapping[str, Any], exp: ExperimentConfig) -> Section
     check_divisible(population.size, exp.num_devices, "population.size")
     _no_reevaluation(qd)
     check_mo_task(task, exp.algorithm)
-    if population.crowding != "distance" and exp.algorithm != "nsga2":
+    if population.crowding != "distance" and survival != "nsga2":
         raise ConfigError(
             f"population.crowding: expected \"distance\" for {exp.algorithm} (pruning is NSGA-II's "
             f"cut of its last front), got {population.crowding!r}"
@@ -261,7 +233,7 @@ def _parse_population(spec: Mapping[str, Any], exp: ExperimentConfig) -> Section
     return {"task": task, "population": population, "qd": qd}
 
 
-def _build_population(sections: Sections, ctx: BuildContext) -> Algorithm:
+def _build_population(sections: Sections, ctx: BuildContext, survival: Survival) -> Algorithm:
     task = make_task_of(sections["task"])
     c: PopulationConfig = sections["population"]
     qd = sections["qd"]
@@ -270,7 +242,6 @@ def _build_population(sections: Sections, ctx: BuildContext) -> Algorithm:
         c.size, c.crossover_eta, c.mutation_eta, mutation_prob, task.genotype_low,
         task.genotype_high, crossover_prob=c.crossover_prob, redraws=c.redraws,
     )
-    survival: Survival = "nsga2" if ctx.algorithm == "nsga2" else "spea2"
 
     def empty(centroids: Any = None) -> Any:
         del centroids
@@ -297,10 +268,19 @@ def _build_population(sections: Sections, ctx: BuildContext) -> Algorithm:
         placement=ctx.placement,
         state_axes=me.state_axes,
         descriptor_space=DescriptorSpace(task.descriptor_low, task.descriptor_high, task.descriptor_names),
-        qd=QDParts(task, empty, scoring_factory(task, None)),
+        qd=QDParts(task, empty, task.scoring),
     )
 
 
-_POPULATION = {"parse": _parse_population, "build": _build_population, "length_key": "qd.num_iterations"}
-NSGA2 = Recipe(**_POPULATION, description="NSGA-II (Deb et al. 2002)")  # type: ignore[arg-type]
-SPEA2 = Recipe(**_POPULATION, description="SPEA2 (Zitzler et al. 2001)")  # type: ignore[arg-type]
+def population_recipe(survival: Survival, description: str) -> Recipe:
+    """The recipe of a Pareto population with `survival`'s rule ("nsga2" or "spea2")."""
+    return Recipe(
+        parse=lambda spec, exp: _parse_population(spec, exp, survival),
+        build=lambda sections, ctx: _build_population(sections, ctx, survival),
+        length_key="qd.num_iterations",
+        description=description,
+    )
+
+
+NSGA2 = population_recipe("nsga2", "NSGA-II (Deb et al. 2002)")
+SPEA2 = population_recipe("spea2", "SPEA2 (Zitzler et al. 2001)")

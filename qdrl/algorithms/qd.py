@@ -75,16 +75,17 @@ from qdrl.qd.emitters.qd_rl import (
 )
 from qdrl.qd.emitters.registry import (
     CMA_KINDS,
-    EMITTER_KINDS,
     GA_KINDS,
     EmitterContext,
-    build_emitter,
-    build_pool,
-    check_pool,
+    EmitterFamily,
+    EmitterPool,
+    build_emitters,
+    configs_of,
     parse_emitter,
+    parse_emitters,
+    reads_gradients,
     uses_cma_es,
 )
-from qdrl.qd.emitters.scheduler import SchedulerConfig
 from qdrl.qd.map_elites import MapElites, qd_state_axes
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, write_csv
@@ -94,8 +95,6 @@ from qdrl.tasks import TASKS, Task
 __all__ = [
     "QD_PROGRESS",
     "Container",
-    "EmitterFamily",
-    "EmitterPool",
     "EmitterSource",
     "QDConfig",
     "RepertoireConfig",
@@ -235,93 +234,30 @@ class EmitterSource:
         )
 
 
-@dataclasses.dataclass(frozen=True)
-class EmitterFamily:
-    """What a QD algorithm name means for its emitters and repertoire: defaults and allowed kinds.
-
-    `emitter`: the default `[emitter]` table (its `kind` and the values the
-    algorithm sets, under the spec's keys); `kinds`: the kinds its `[emitter]` or
-    `[[emitters]]` may name (None: all); `pool`: whether `[[emitters]]` is accepted;
-    `repertoire`: defaults of `[repertoire]` (CMA-MAE's learning rate).
-    """
-
-    emitter: Mapping[str, Any] = dataclasses.field(default_factory=lambda: {"kind": "isoline"})
-    kinds: tuple[str, ...] | None = None
-    pool: bool = True
-    repertoire: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-
-
-@dataclasses.dataclass(frozen=True)
-class EmitterPool:
-    """A bandit pool of emitters (`[[emitters]]` and `[scheduler]`)."""
-
-    emitters: tuple[Any, ...]
-    scheduler: SchedulerConfig
-
-    @property
-    def offspring(self) -> int:
-        return self.scheduler.num_active * self.emitters[0].instance_size
-
-
-def _registry_configs(config: Any) -> list[tuple[Any, str]]:
-    """(config, section) of a registry emitter or of each member of a pool."""
-    if isinstance(config, EmitterPool):
-        return [(c, f"emitters[{i}]") for i, c in enumerate(config.emitters)]
-    return [(config, "emitter")]
-
-
-def _parse_registry(spec: Mapping[str, Any], family: EmitterFamily) -> Any:
-    default = dict(family.emitter)
-    kind = str(default.pop("kind"))
-
-    def emitter_of(data: Any, section: str) -> Any:
-        return parse_emitter(data, section, kind, family.kinds, default)
-
-    if "emitters" not in spec:
-        return emitter_of(spec.get("emitter", {}), "emitter")
-    if not family.pool:
-        raise ConfigError("emitters: this algorithm takes one [emitter], not a pool of [[emitters]]")
-    if "emitter" in spec:
-        raise ConfigError("emitter: give either one [emitter] or a pool of [[emitters]], not both")
-    tables = spec["emitters"]
-    if not (isinstance(tables, list) and tables and all(isinstance(t, Mapping) for t in tables)):
-        raise ConfigError(
-            "emitters: expected a list of tables ([[emitters]] followed by key = value lines), "
-            f"got {tables!r}"
-        )
-    pool = tuple(emitter_of(t, f"emitters[{i}]") for i, t in enumerate(tables))
-    scheduler = build(SchedulerConfig, spec.get("scheduler", {}), "scheduler")
-    check_pool(pool, scheduler)
-    return EmitterPool(pool, scheduler)
-
-
 def _build_registry(config: Any, task: Task, ctx: BuildContext) -> QDRLParts:
     del ctx
-    context = EmitterContext.of_task(task)
-    if isinstance(config, EmitterPool):
-        emitter = build_pool(config.emitters, config.scheduler, context)
-    else:
-        emitter = build_emitter(config, context)
+    emitter = build_emitters(config, EmitterContext.of_task(task))
     # OMG-MEGA reads every offspring's gradients: the loop evaluates with the task's gradients.
-    scoring = task.scoring_fn
-    if any(EMITTER_KINDS[c.kind].gradients == "scoring" for c, _ in _registry_configs(config)):
-        assert task.gradient_scoring_fn is not None, "checked by _check_registry"
-        scoring = task.gradient_scoring_fn
-    return QDRLParts(emitter, task.init_genotypes, scoring, task.example_genotype())
+    if reads_gradients(config):
+        assert task.gradient_scoring_fn is not None, "build_emitters refuses a task without"
+        return QDRLParts(emitter, task.init_genotypes, task.gradient_scoring_fn, task.example_genotype())
+    return QDRLParts(emitter, task.init_genotypes, task.scoring_fn, task.example_genotype())
 
 
-def registry_source(family: EmitterFamily = EmitterFamily(), default_repertoire: Literal["grid", "cvt"] = "grid") -> EmitterSource:
+def registry_source(
+    family: EmitterFamily = EmitterFamily(), default_repertoire: Literal["grid", "cvt"] = "grid"
+) -> EmitterSource:
     """The emitters of the registry (`qdrl.qd.emitters.registry`): one `[emitter]` of the
     family's kinds, or a bandit pool of `[[emitters]]` under `[scheduler]`."""
     return EmitterSource(
-        parse=lambda spec, exp: _parse_registry(spec, family),
+        parse=lambda spec, exp: parse_emitters(spec, family),
         where="emitter.batch_size",
         tables=lambda c: (
             {"emitters": c.emitters, "scheduler": c.scheduler} if isinstance(c, EmitterPool) else {"emitter": c}
         ),
         config_of=lambda s: EmitterPool(s["emitters"], s["scheduler"]) if "emitters" in s else s["emitter"],
         build=_build_registry,
-        uses_cma_es=lambda c: uses_cma_es([x for x, _ in _registry_configs(c)]),
+        uses_cma_es=lambda c: uses_cma_es([x for x, _ in configs_of(c)]),
         default_repertoire=default_repertoire,
     )
 
@@ -621,19 +557,6 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
     return row
 
 
-def scoring_factory(task: Task, policy: Any) -> Callable[..., Any]:
-    """(fixed_start=True, record=None) -> the task's scoring of genotypes acting by `policy`
-    (None: the task's own policy network); random start states and recorded env states need
-    a policy task (other tasks have one scoring function, whatever their key draws)."""
-
-    def scoring(fixed_start: bool = True, record: Any = None) -> Any:
-        if task.policy_scoring is None or (policy is None and fixed_start and record is None):
-            return task.scoring_fn
-        return task.policy_scoring(policy, fixed_start=fixed_start, record=record)
-
-    return scoring
-
-
 def write_repertoire(rep: Any, out_dir: Path, task: Task, title: str) -> None:
     """A QD run's final repertoire: repertoire.npz, repertoire.csv and plots/repertoire.png."""
     export_npz(rep, out_dir / "repertoire.npz")
@@ -689,7 +612,7 @@ def _build(
         )
 
     genotypes = initial_genotypes(qd, parts)
-    qd_parts = QDParts(task, lambda centroids: empty(None, centroids), scoring_factory(task, parts.policy))
+    qd_parts = QDParts(task, lambda centroids: empty(None, centroids), functools.partial(task.scoring, parts.policy))
     title = f"{ctx.algorithm} on {task.name}"
 
     def init(key: jax.Array) -> Any:

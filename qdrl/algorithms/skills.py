@@ -18,20 +18,19 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from qdrl import off_policy, plotting
+from qdrl import plotting
 from qdrl.agents.base import AgentState
 from qdrl.agents.dads import DADSConfig
 from qdrl.agents.diayn import DIAYNConfig
 from qdrl.agents.sac import SACConfig
-from qdrl.agents.skill_discovery import make_skill_discovery
+from qdrl.agents.skill_discovery import evaluate_skills, make_skill_discovery
 from qdrl.agents.smerl import SMERLConfig
 from qdrl.algorithms.base import (
     Algorithm,
@@ -54,14 +53,12 @@ from qdrl.algorithms.rl import (
 from qdrl.config import ConfigError, OneOf, PositiveInt, build, check_keys, check_table
 from qdrl.envs.base import Env
 from qdrl.envs.brax import Backend
-from qdrl.envs.skills import append_skill
 from qdrl.off_policy import STATE_AXES, TrainConfig, make_trainer
 from qdrl.qd.repertoires.passive import feed
-from qdrl.rollout import run_episodes
 from qdrl.tasks import TASKS, Task
 from qdrl.types import Array, PRNGKey
 
-__all__ = ["DADS", "DIAYN", "SKILL_TASKS", "SMERL_DADS", "SMERL_DIAYN", "SkillEnvConfig", "skill_task", "skill_trainer_builder"]
+__all__ = ["DADS", "DIAYN", "SKILL_TASKS", "SMERL_DADS", "SMERL_DIAYN", "SkillEnvConfig", "skill_task"]
 
 # The QD tasks (`qdrl.tasks`) a skill-discovery run can use: their environment,
 # reward, episode descriptor, bounds and QD offset measure skills and QD algorithms
@@ -146,41 +143,7 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     metric = _MODEL_METRIC[type(skills_cfg)]
 
     def evaluate(agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
-        """Episode i plays skill i % K deterministically; returns metrics and the trajectories."""
-        params = sd.agent.policy_params(agent_state)
-        skills = jnp.arange(num_eval, dtype=jnp.int32) % k
-        run_key, model_key = jax.random.split(key)
-
-        def policy(obs: Array, _: PRNGKey) -> Array:
-            return sd.agent.policy(params, append_skill(obs, skills, k))
-
-        ep = run_episodes(base_env, policy, run_key, num_eval)
-        desc = ep.final_desc if archive_cfg.descriptor == "final" else ep.mean_desc
-        desc = jnp.clip(desc, jnp.asarray(archive_cfg.low), jnp.asarray(archive_cfg.high))
-        # The skill model's metrics on the evaluation steps, as the training batches see them.
-        tr = ep.transitions
-        steps = tr.obs.shape[0]
-        per_step = jnp.broadcast_to(skills, (steps, num_eval))
-        tr = tr._replace(obs=append_skill(tr.obs, per_step, k), next_obs=append_skill(tr.next_obs, per_step, k))
-        flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), tr)
-        _, info = sd.module.reward(agent_state.aux, flat, model_key)
-        mask = ep.mask
-        last = jax.nn.one_hot(ep.lengths - 1, steps, axis=0) * mask  # (T, B) the last step
-        out: dict[str, Array] = {
-            "eval_return": jnp.mean(ep.returns),
-            "eval_return_std": jnp.std(ep.returns),
-            "eval_return_min": jnp.min(ep.returns),
-            "eval_length": jnp.mean(ep.lengths.astype(jnp.float32)),
-            "returns": ep.returns,
-            "descriptors": desc,
-            "trajectories": tr.next_desc,
-            "mask": mask,
-        }
-        for name, value in info.items():
-            v = value.reshape(mask.shape)
-            out[f"eval_{name}"] = jnp.sum(v * mask) / jnp.sum(mask)
-            out[f"eval_final_{name}"] = jnp.sum(v * last) / jnp.sum(last)
-        return out
+        return evaluate_skills(sd, agent_state, key, num_eval, archive_cfg.descriptor, archive_cfg.low, archive_cfg.high)
 
     def init(key: jax.Array) -> RLState:
         return RLState(trainer.init(key), archive_cfg.empty())
@@ -240,29 +203,6 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         state_axes=RLState(STATE_AXES, None),  # type: ignore[arg-type]
         descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),
     )
-
-
-def skill_trainer_builder(
-    algorithm: str,
-    hidden: tuple[int, ...] = (256, 256),
-    num_skills: int = 10,
-    smerl: SMERLConfig | None = None,
-) -> Callable[[Env, TrainConfig], off_policy.Trainer]:
-    """`(env, train_config) -> Trainer` of a skill-discovery `algorithm` with default settings.
-
-    SAC and the skill model both use `hidden`; for the throughput benchmark (`qdrl bench skills`).
-    """
-    if algorithm not in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
-        raise ValueError(f"unknown skill-discovery algorithm {algorithm!r}")
-    is_smerl = algorithm.startswith("smerl")
-    cls = DADSConfig if algorithm.endswith("dads") else DIAYNConfig
-
-    def build_trainer(env: Env, config: TrainConfig) -> off_policy.Trainer:
-        skills = cls(num_skills=num_skills, hidden=hidden, extrinsic_scale=1.0 if is_smerl else 0.0)
-        sd = make_skill_discovery(env, SACConfig(hidden=hidden), skills, (smerl or SMERLConfig()) if is_smerl else None)
-        return make_trainer(sd.env, sd.agent, config, sd.storage)
-
-    return build_trainer
 
 
 def skills_recipe(base: Literal["diayn", "dads"], smerl: bool, description: str) -> Recipe:

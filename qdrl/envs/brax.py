@@ -110,9 +110,8 @@ def feet_contact(sys: Any, feet: Sequence[int], pipeline_state: Any) -> Array:
     on them this is ground contact. The mjx pipeline fills `pipeline_state.contact`
     at every step; the other pipelines keep it only with `debug=True`, so it is
     computed here from the link transforms: one extra collision pass per env step
-    (the physics step makes n_frames of them). Measured on a 2-core CPU, spring,
-    batch 128: ant +30% time per env step (15k against 20k steps/s without it),
-    humanoid no measurable cost.
+    (the physics step makes n_frames of them): a noticeable share of an ant's env
+    step, next to nothing on humanoid (figures in docs/benchmarks.md).
     """
     c = pipeline_state.contact
     if c is None:

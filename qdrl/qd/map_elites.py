@@ -352,9 +352,9 @@ class MapElites:
         vector (integers by their bit pattern, so exactly) and are unpacked after the
         loop: one write into the stacked output per iteration instead of one per metric
         (one kernel instead of seven). On a CPU each metric is its own output: there the
-        unpacking would compile one more kernel per metric (5% of the arm program's
-        code) for writes that cost nothing. `num_steps` sets the scan's length, so it
-        must be a Python int when jitted: `jax.jit(me.run, static_argnums=1)`.
+        unpacking would compile one more kernel per metric (a visible share of the
+        program's code) for writes that cost nothing. `num_steps` sets the scan's length,
+        so it must be a Python int when jitted: `jax.jit(me.run, static_argnums=1)`.
         """
         try:
             length = operator.index(num_steps)

@@ -71,8 +71,8 @@ def spea2_fitness(points: Array, mask: Array, k: int) -> tuple[Array, Array]:
     sq_dist = jnp.where(pair, sq_dist, jnp.inf)
     if n > 1:
         # The k-th smallest of each row, as the smallest of the k largest of the negated row:
-        # XLA:CPU keeps this a TopK call (0.2 ms for 200 x 200), while slicing one column of
-        # top_k's output is rewritten into a full sort of every row (3.2 ms).
+        # XLA:CPU keeps this a TopK call, while slicing one column of top_k's output is
+        # rewritten into a full sort of every row, many times slower.
         kth = jnp.sqrt(-jnp.min(jax.lax.top_k(-sq_dist, min(k, n - 1))[0], axis=1))
     else:
         kth = jnp.full((n,), jnp.inf)

@@ -113,6 +113,14 @@ class Task:
         """Number of descriptor dimensions D."""
         return len(self.descriptor_low)
 
+    def scoring(self, policy: Any = None, fixed_start: bool = True, record: Any = None) -> ScoringFn:
+        """The scoring of genotypes acting by `policy` (None: the task's own network): random
+        start states (`fixed_start=False`, for re-evaluations) and recorded env states (`record`,
+        for replays) need a policy task; other tasks have one scoring function."""
+        if self.policy_scoring is None or (policy is None and fixed_start and record is None):
+            return self.scoring_fn
+        return self.policy_scoring(policy, fixed_start=fixed_start, record=record)
+
     def example_genotype(self) -> Any:
         """One genotype without batch axis (zeros), e.g. to build an empty repertoire."""
         if self.genotype_template is not None:

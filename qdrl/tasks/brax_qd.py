@@ -36,15 +36,12 @@ Genotypes are batched haiku parameter trees of `policy_network(action_size,
 policy_hidden)` (tanh MLP, 64x64 in the literature), initialised by
 `init_policies`; they are unbounded (`genotype_low/high = -inf/inf`).
 
-Backends: every task defaults to brax's `spring` pipeline, the fastest on CPU and
-QDax's own default for these tasks. Spring resolves foot-floor contacts and, the
-walls being static geoms like the floor, foot/torso-wall contacts: a thrown ant
-stops at the walls (tests/test_brax_walls.py). Measured here (2-core CPU, batch
-128, 100-step episodes, policy evaluation included, env steps/s): spring ant_uni
-15k, ant_omni 20k, ant_trap 12.5k, ant_maze 9k (its 35 wall contact pairs),
-halfcheetah_uni 11k, walker2d_uni 44k, hopper_uni 98k, humanoid_uni 12k,
-humanoid_omni 11k; mjx ant_uni 14k, ant_maze 5k. `mjx` (physically closest to
-MuJoCo, contacts always computed) and `positional` also stop the ant at the walls;
+Backends: every task defaults to brax's `spring` pipeline, the fastest on CPU (env
+steps/s per task in docs/benchmarks.md) and QDax's own default for these tasks.
+Spring resolves foot-floor contacts and, the walls being static geoms like the
+floor, foot/torso-wall contacts: a thrown ant stops at the walls
+(tests/test_brax_walls.py). `mjx` (physically closest to MuJoCo, contacts always
+computed) and `positional` also stop the ant at the walls;
 `generalized` does too, but on this stack (brax 0.14.2, mujoco 4.0) its ant sinks
 through the floor (torso z from 0.59 to 0.30 in 40 zero-action steps, without any
 wall), so it is not meaningful for the ant tasks.
@@ -168,7 +165,8 @@ def halfcheetah_uni(
     """HalfCheetah, feet-contact rates (back foot, front foot) in [0, 1]^2; fitness = its reward.
 
     Reward per step: forward velocity - 0.1 |a|^2; never terminates. Default
-    backend spring (halfcheetah on mjx with brax's default solver is 7x slower).
+    backend spring (halfcheetah on mjx with brax's default solver is several times
+    slower).
     """
     return _uni("halfcheetah_uni", "halfcheetah", episode_length, backend, policy_hidden, eval_batch)
 

@@ -72,13 +72,13 @@ def snake(
     averaged over the episode: the region of the board where the snake spends its
     time. Every episode starts from the same board (`start_seed`, see
     `qdrl.envs.jumanji.JumanjiEnv`), so fitness and descriptor are deterministic
-    functions of the policy. Measured on 1024 random (64, 64) policies, 100 steps:
-    the mean head position fills 53 to 62 of the 8 x 8 cells (seeds 0, 1), while
-    pairs of action shares fill 8 to 12 (deterministic policies mostly settle into
-    back-and-forth moves whose shares look alike); with random starts instead
-    (`start_seed=None`) the mean head position mostly reflects the start cell (the
-    same policies moved by 0.32 on average between two evaluations). Random
-    policies rarely eat (2 to 3% eat one fruit), so early fitness is flat at 0.
+    functions of the policy. Random policies spread their mean head position over
+    most cells of a grid of the descriptor space, while pairs of action shares fill
+    few of them (deterministic policies mostly settle into back-and-forth moves
+    whose shares look alike); with random starts instead (`start_seed=None`) the
+    mean head position mostly reflects the start cell, so a policy's descriptor
+    moves far between two evaluations. Random policies rarely eat a fruit, so early
+    fitness is flat at 0 (figures in docs/benchmarks.md).
     Returns are >= 0, so `qd_offset` is 0. The policy sees the board and the action
     mask (`qdrl.envs.jumanji.snake_observation`) and moves only where the mask
     allows.

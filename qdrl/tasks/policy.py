@@ -136,7 +136,7 @@ def policy_scoring_fn(
 
     # One jitted rollout per task: jax traces it once per block shape and reuses the trace
     # wherever the task is evaluated again with that shape (a run's initial population and
-    # its step; 1.3-1.6 s of tracing brax's step each time on halfcheetah). The compiled
+    # its step), so a costly trace such as brax's step is paid once. The compiled
     # programs are unchanged: XLA inlines the call.
     rollout = jax.jit(rollout)
 

@@ -42,13 +42,19 @@ __all__ = [
     "EMITTER_KINDS",
     "GA_KINDS",
     "EmitterContext",
+    "EmitterFamily",
     "EmitterKind",
+    "EmitterPool",
     "build_emitter",
+    "build_emitters",
     "build_pool",
     "check_gradients",
     "check_pool",
+    "configs_of",
     "emitter_kind_names",
     "parse_emitter",
+    "parse_emitters",
+    "reads_gradients",
     "uses_cma_es",
 ]
 
@@ -243,3 +249,76 @@ def build_pool(
 def uses_cma_es(configs: Sequence[Any]) -> bool:
     """Whether any of these emitters runs a CMA-ES (eigendecompositions: one LAPACK thread helps)."""
     return any(EMITTER_KINDS[c.kind].cma_es for c in configs)
+
+
+@dataclasses.dataclass(frozen=True)
+class EmitterFamily:
+    """What a QD algorithm name means for its emitters: defaults and allowed kinds.
+
+    `emitter`: the default `[emitter]` table (its `kind` and the values the algorithm
+    sets, under the spec's keys); `kinds`: the kinds its `[emitter]` or `[[emitters]]`
+    may name (None: all); `pool`: whether `[[emitters]]` is accepted.
+    """
+
+    emitter: Mapping[str, Any] = dataclasses.field(default_factory=lambda: {"kind": "isoline"})
+    kinds: tuple[str, ...] | None = None
+    pool: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class EmitterPool:
+    """A bandit pool of emitters (`[[emitters]]` and `[scheduler]`)."""
+
+    emitters: tuple[Any, ...]
+    scheduler: SchedulerConfig
+
+    @property
+    def offspring(self) -> int:
+        """Offspring per iteration: the active instances' offspring."""
+        return self.scheduler.num_active * self.emitters[0].instance_size
+
+
+def configs_of(config: Any) -> list[tuple[Any, str]]:
+    """(config, section) of one emitter's config, or of each member of a pool."""
+    if isinstance(config, EmitterPool):
+        return [(c, f"emitters[{i}]") for i, c in enumerate(config.emitters)]
+    return [(config, "emitter")]
+
+
+def parse_emitters(spec: Mapping[str, Any], family: EmitterFamily = EmitterFamily()) -> Any:
+    """The checked `[emitter]` of a spec (its kind's config), or the `EmitterPool` of its
+    `[[emitters]]` and `[scheduler]`; errors name `section.key`."""
+    default = dict(family.emitter)
+    kind = str(default.pop("kind"))
+
+    def emitter_of(data: Any, section: str) -> Any:
+        return parse_emitter(data, section, kind, family.kinds, default)
+
+    if "emitters" not in spec:
+        return emitter_of(spec.get("emitter", {}), "emitter")
+    if not family.pool:
+        raise ConfigError("emitters: this algorithm takes one [emitter], not a pool of [[emitters]]")
+    if "emitter" in spec:
+        raise ConfigError("emitter: give either one [emitter] or a pool of [[emitters]], not both")
+    tables = spec["emitters"]
+    if not (isinstance(tables, list) and tables and all(isinstance(t, Mapping) for t in tables)):
+        raise ConfigError(
+            "emitters: expected a list of tables ([[emitters]] followed by key = value lines), "
+            f"got {tables!r}"
+        )
+    pool = tuple(emitter_of(t, f"emitters[{i}]") for i, t in enumerate(tables))
+    scheduler = build(SchedulerConfig, spec.get("scheduler", {}), "scheduler")
+    check_pool(pool, scheduler)
+    return EmitterPool(pool, scheduler)
+
+
+def build_emitters(config: Any, ctx: EmitterContext) -> Any:
+    """The emitter of `parse_emitters`' result: one emitter, or the bandit over the pool."""
+    if isinstance(config, EmitterPool):
+        return build_pool(config.emitters, config.scheduler, ctx)
+    return build_emitter(config, ctx)
+
+
+def reads_gradients(config: Any) -> bool:
+    """Whether the QD loop must evaluate with the task's gradients (OMG-MEGA reads every offspring's)."""
+    return any(EMITTER_KINDS[c.kind].gradients == "scoring" for c, _ in configs_of(config))

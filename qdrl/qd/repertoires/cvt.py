@@ -4,9 +4,9 @@ CVT-MAP-Elites (Vassiliades et al. 2018) partitions the descriptor space into
 `num_centroids` cells of roughly equal volume: sample many points uniformly in the
 box and run Lloyd's k-means on them; the cluster centres are the centroids. The
 centres start from greedy k-means++ seeding: Lloyd's iterations from a random subset
-of the samples stall in a visibly uneven tessellation (1,024 cells of the unit square:
-the number of 200,000 uniform points per cell varied by 20-25% (standard deviation over
-mean) against 14-15% with the seeding, as with scikit-learn's k-means that QDax uses).
+of the samples stall in a visibly uneven tessellation (the number of uniform points per
+cell varies clearly more than with the seeding, which scikit-learn's k-means, QDax's,
+also uses; figures in docs/benchmarks.md).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from typing import Any
 import jax
 import numpy as np
 
-__all__ = ["export_npz", "to_table", "write_csv"]
+__all__ = ["export_npz", "export_solutions", "to_table", "write_csv", "write_front"]
 
 
 def to_table(repertoire: Any) -> dict[str, np.ndarray]:
@@ -74,3 +74,33 @@ def export_npz(repertoire: Any, path: str | Path) -> Path:
     with out.open("wb") as f:
         np.savez(f, **arrays)
     return out
+
+
+def write_front(front: np.ndarray, path: Path) -> None:
+    """A Pareto front (k, M) as a CSV file, one row per point (`objective_0..M-1`)."""
+    header = ",".join(f"objective_{k}" for k in range(front.shape[1]))
+    np.savetxt(path, front, delimiter=",", header=header, comments="")
+
+
+def export_solutions(container: Any, out_dir: Path, name: str) -> None:
+    """A multi-objective container's solutions (a MOME repertoire's fronts, a Pareto population):
+    `<name>.npz` (as `export_npz`: fitnesses, descriptors, genotype leaves named `genotypes` +
+    key path, centroids) and `<name>.csv`, one row per stored solution (cell and slot, or slot)."""
+    fit = np.asarray(container.fitnesses)
+    desc = np.asarray(container.descriptors)
+    arrays: dict[str, np.ndarray] = {"fitnesses": fit, "descriptors": desc}
+    for key_path, leaf in jax.tree_util.tree_flatten_with_path(container.genotypes)[0]:
+        arrays["genotypes" + jax.tree_util.keystr(key_path)] = np.asarray(leaf)
+    if hasattr(container, "centroids"):
+        arrays["centroids"] = np.asarray(container.centroids)
+    np.savez_compressed(out_dir / f"{name}.npz", **arrays)  # type: ignore[arg-type]
+    m, d = fit.shape[-1], desc.shape[-1]
+    flat_f, flat_d = fit.reshape(-1, m), desc.reshape(-1, d)
+    keep = np.all(np.isfinite(flat_f), axis=1)
+    slots = fit.shape[1] if fit.ndim == 3 else len(fit)
+    index = np.arange(len(flat_f))
+    cols = [index // slots, index % slots, *flat_f.T, *flat_d.T]
+    names = ["cell", "slot", *(f"objective_{k}" for k in range(m)), *(f"descriptor_{k}" for k in range(d))]
+    table = np.stack(cols, axis=1)[keep]
+    fmt = ["%d", "%d", *(["%.9g"] * (m + d))]
+    np.savetxt(out_dir / f"{name}.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)

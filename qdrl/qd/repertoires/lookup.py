@@ -44,8 +44,8 @@ from qdrl.types import Array
 
 MAX_LOOKUP_CELLS = 1 << 18  # bounds the one-off construction cost and the table's memory
 MAX_DIM = 3  # beyond this, R^D lookup cells get too many for a fine grid
-# Construction compares every lookup cell with every centroid (about 4 C^2 pairs):
-# a few seconds at C = 4096 on a 2-core CPU; larger archives use brute force.
+# Construction compares every lookup cell with every centroid (about 4 C^2 pairs), a
+# one-off cost that grows too long beyond this; larger archives use brute force.
 MAX_CENTROIDS = 4096
 
 
@@ -170,7 +170,7 @@ def _sq_dists(points: Array, cand: Array) -> Array:
     """(n, K) squared distances from points (n, D) to cand (n, K, D) or (K, D), one dimension at a time.
 
     Summing D terms of (n, K) keeps the K axis minor (vectorised on a CPU) instead
-    of reducing a minor axis of length D: 2-4x faster for D = 2.
+    of reducing a minor axis of length D: faster for D = 2.
     """
     cand = cand if cand.ndim == 3 else cand[None]
     return sum(
@@ -195,7 +195,7 @@ def lookup_nearest(points: Array, centroids: Array, lookup: Lookup) -> Array:
     def from_hull() -> Array:
         d = _sq_dists(points, centroids[lookup.hull])  # (n, H)
         # The lowest index among the nearest: the minimum, then the smallest index at that
-        # distance (an argmin over H runs 4x slower on a CPU).
+        # distance (an argmin over H runs several times slower on a CPU).
         at_min = d == jnp.min(d, axis=-1, keepdims=True)
         nearest_hull = jnp.min(jnp.where(at_min, lookup.hull[None, :], jnp.iinfo(jnp.int32).max), -1)
         return jnp.where(outside, nearest_hull, fast)
