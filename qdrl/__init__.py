@@ -10,6 +10,7 @@ if TYPE_CHECKING:
     from qdrl.runs import load_metrics, load_repertoires, load_run
 
 from qdrl._version import __version__
+
 __all__ = ["MujocoWarning", "__version__", "load_metrics", "load_repertoires", "load_run", "quiet"]
 
 # Cheap (imports nothing) and narrow: see qdrl/_quiet.py for the messages it silences.
