@@ -53,10 +53,10 @@ def _summary(front: np.ndarray, reference: tuple[float, ...]) -> dict[str, Any]:
 
 def run_map_elites(run_: Any, seed: int) -> tuple[np.ndarray, float]:
     """MAP-Elites on objective 0; returns the (k, 2) objectives of its elites and its run time."""
+    from qdrl.algorithms.qd import make_repertoire
     from qdrl.qd.base import Evaluation
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
-    from qdrl.algorithms.qd import make_repertoire
 
     task, ec, qd = run_.qd.task, run_.sections["emitter"], run_.sections["qd"]
 

@@ -316,9 +316,9 @@ def test_example_runs_at_its_small_size(script: str, tmp_path: Path) -> None:
     if script == "map_elites_function.py":
         assert float(lines[-1].split("coverage")[1]) > 0.5
     elif script == "diayn_skills.py":
-        assert "discriminator accuracy" in lines[0] and (tmp_path / "out" / "plots" / "skills.png").is_file()
-        assert int(lines[1].split("reached ")[1].split()[0]) >= 1
-    else:
-        assert lines[0].startswith("QD score") and "24 evaluations, 240 env steps" in lines[0]
-        assert "back foot contact" in lines[1] and lines[2].endswith(".html")
-        assert Path(lines[2].split("replay: ")[1]).stat().st_size > 5_000  # 10 frames of brax's viewer
+        assert lines[0].startswith("1600 env steps: discriminator accuracy")
+        assert int(lines[1].split("reached ")[1].split()[0]) >= 1 and lines[1].count(" z") == 4
+    else:  # 8 initial policies and 2 batches of 8, 10 steps each; the critic trained 3 times
+        assert lines[1].startswith("iteration 2: QD score") and "240 env steps, critic steps 12" in lines[1]
+        best, again = lines[2].split("return ")[1].split(", scored again ")
+        assert best == again
