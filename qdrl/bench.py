@@ -10,6 +10,11 @@ from __future__ import annotations
 
 import json
 import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -389,6 +394,52 @@ POLICY_TASKS = (
     "ant_uni", "halfcheetah_uni", "walker2d_uni", "hopper_uni", "humanoid_uni",
     "ant_omni", "humanoid_omni", "ant_maze", "ant_trap", "point_maze", "snake",
 )
+
+
+# (packaged spec, a bad value): the spec errors `qdrl bench cli` times, as a user meets them.
+CLI_CASES = (
+    ("map_elites_arm", "emitter.line_sigma=-1.0"),
+    ("pga_me_halfcheetah_uni_cpu", "pg.discount=2.0"),
+    ("sac_halfcheetah", "train.batch_size=0"),
+)
+
+
+def _timed_process(cmd: list[str]) -> tuple[float, float, int]:
+    """(wall seconds, CPU seconds of the child, exit status) of one process."""
+    before, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+    wall, after = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), res.returncode
+
+
+@_register("cli")
+def bench_cli(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
+    """The CLI's start-up cost: `qdrl run SPEC --set <bad value>` in fresh processes, until its
+    one-line error (exit status 2), and `python -c "import qdrl.experiment"` (the imports a run
+    needs); the median of the repeats, wall and CPU seconds. `config`: one spec of CLI_CASES."""
+    del seed
+    repeats = 1 if quick else 3
+    cases = [c for c in CLI_CASES if config in (None, c[0])]
+    if not cases:
+        raise ValueError(f"unknown spec {config!r} for the cli benchmark; expected one of {[c[0] for c in CLI_CASES]}")
+    commands = {"import qdrl.experiment": [sys.executable, "-c", "import qdrl.experiment"]}
+    with tempfile.TemporaryDirectory() as tmp:
+        for spec, bad in cases:
+            commands[f"qdrl run {spec} --set {bad}"] = [
+                sys.executable, "-m", "qdrl.cli", "run", spec, "--set", bad, "--out", str(Path(tmp) / "never"),
+            ]
+        records = []
+        for what, cmd in commands.items():
+            runs = [_timed_process(cmd) for _ in range(repeats)]
+            expected = 0 if what.startswith("import") else 2
+            if any(code != expected for _, _, code in runs):
+                raise RuntimeError(f"{what}: expected exit status {expected}, got {[c for _, _, c in runs]}")
+            records.append({
+                "bench": "cli", "command": what, "repeats": repeats,
+                "wall_s": round(statistics.median(w for w, _, _ in runs), 2),
+                "cpu_s": round(statistics.median(c for _, c, _ in runs), 2),
+            })
+    return records
 
 
 @_register("tasks")

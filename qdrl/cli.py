@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     p_list.set_defaults(fn=_cmd_list)
 
     p_bench = sub.add_parser("bench", help="throughput benchmarks; prints JSON")
-    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark: rl, map_elites, tasks, scaling (1 vs N devices; --config N)")
+    p_bench.add_argument("name", nargs="?", default="rl", help="which benchmark: rl, skills, pbt, map_elites, policy_map_elites, tasks, cli (start-up), scaling (1 vs N devices; --config N)")
     p_bench.add_argument("--quick", action="store_true", help="a small, fast version")
     p_bench.add_argument("--out", default=None, help="also write the JSON to this file")
     p_bench.add_argument("--seed", type=int, default=0, help="random seed")

@@ -1,10 +1,13 @@
 """Test-wide settings: CPU only, quick XLA compiles, and a compilation cache shared by the run.
 
 The tests check what the code computes, not how fast: XLA is asked for unoptimised
-CPU code (`--xla_backend_optimization_level=0`, no expensive LLVM passes), which cut
-the suite's CPU time by about a third (most of it is compiling brax and the agents'
-updates), and every compiled function is kept in a persistent cache that later tests
-and the subprocesses they start (which inherit these variables) reuse.
+CPU code (`--xla_backend_optimization_level=0`, no expensive LLVM passes; most of the
+suite's time is compiling brax and the agents' updates), and every compiled function
+is kept in a persistent cache that later tests and the subprocesses they start (which
+inherit these variables) reuse. The cache is the suite's own: `$QDRL_TEST_CACHE_DIR`
+(`.ci/run` gives a fresh, empty one) or the checkout's `.jax_cache/`, never a
+`JAX_COMPILATION_CACHE_DIR` the environment set, so every run starts from what this
+suite compiled, as a new user's does.
 """
 
 from __future__ import annotations
@@ -19,15 +22,15 @@ from typing import Any
 import pytest
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-_cache = Path(__file__).resolve().parents[1] / ".jax_cache"
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_cache))
+_cache = Path(os.environ.get("QDRL_TEST_CACHE_DIR") or Path(__file__).resolve().parents[1] / ".jax_cache")
+os.environ["JAX_COMPILATION_CACHE_DIR"] = str(_cache)
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 _flags = os.environ.get("XLA_FLAGS", "")
 if "xla_backend_optimization_level" not in _flags:
     os.environ["XLA_FLAGS"] = (
         f"{_flags} --xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
     ).strip()
-os.environ.setdefault("QDRL_CACHE_DIR", str(_cache / "qdrl"))  # compile-time records of test runs
+os.environ["QDRL_CACHE_DIR"] = str(_cache / "qdrl")  # compile-time records of test runs
 
 
 @pytest.fixture
@@ -50,3 +53,45 @@ def resumes_bit_identically() -> Callable[[Path, Path, dict[str, Any], Sequence[
         assert json.loads((out / "summary.json").read_text())["qd_score"] == summary["qd_score"]
 
     return check
+
+
+class Compilations:
+    """Counts the XLA programs compiled (or loaded from the persistent cache) inside a `with` block."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def __enter__(self) -> Compilations:
+        import jax.monitoring
+
+        def compiled(event: str, duration: float, **kwargs: Any) -> None:
+            if event == "/jax/core/compile/backend_compile_duration":
+                self.count += 1
+
+        def loaded(event: str, **kwargs: Any) -> None:
+            if event == "/jax/compilation_cache/cache_hits":
+                self.count += 1
+
+        self._listeners = (compiled, loaded)
+        jax.monitoring.register_event_duration_secs_listener(compiled)
+        jax.monitoring.register_event_listener(loaded)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import jax.monitoring
+
+        compiled, loaded = self._listeners
+        jax.monitoring.unregister_event_listener(loaded)
+        unregister = getattr(jax.monitoring, "unregister_event_duration_listener", None)
+        if unregister is None:  # older jax: the private function
+            from jax._src import monitoring
+
+            unregister = monitoring._unregister_event_duration_listener_by_callback
+        unregister(compiled)
+
+
+@pytest.fixture
+def compilations() -> Callable[[], Compilations]:
+    """`with compilations() as c: ...; assert c.count == 0`: a check that fails when a spec error
+    is reported only after something compiled (whatever the machine's speed)."""
+    return Compilations

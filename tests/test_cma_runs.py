@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import time
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
@@ -131,13 +130,12 @@ def _spec(name: str, **sections: dict[str, Any]) -> dict[str, Any]:
     ],
 )
 def test_bad_values_are_refused_before_anything_is_built(
-    name: str, section: str, table: dict[str, Any], message: str
+    name: str, section: str, table: dict[str, Any], message: str, compilations: Any
 ) -> None:
-    t0 = time.perf_counter()
-    with pytest.raises(ConfigError) as info:
+    with compilations() as compiled, pytest.raises(ConfigError) as info:
         check_spec(_spec(name, **{section: table}))
     assert str(info.value).startswith(message), str(info.value)
-    assert time.perf_counter() - t0 < 1.0
+    assert compiled.count == 0
 
 
 def test_pool_entries_are_checked_by_index() -> None:
@@ -165,10 +163,11 @@ def test_pool_entries_are_checked_by_index() -> None:
 def test_mega_emitters_refuse_a_task_without_gradients_before_compiling(name: str) -> None:
     spec = _spec(name)
     spec["task"] = {"name": "rastrigin", "num_dims": 6}
-    t0 = time.perf_counter()
-    with pytest.raises(ConfigError, match=rf"^emitter\.kind: '{name.split('_lp')[0]}' needs the task's gradients; task 'rastrigin' has none"):
+    # Refused while the run is built (the task's gradients are known then), before any compilation.
+    with pytest.raises(
+        ConfigError, match=rf"^emitter\.kind: '{name.split('_lp')[0]}' needs the task's gradients; task 'rastrigin' has none"
+    ):
         build_run(spec)
-    assert time.perf_counter() - t0 < 2.0
 
 
 def test_the_emitter_asks_for_the_gradients_it_needs() -> None:

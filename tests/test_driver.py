@@ -126,10 +126,13 @@ def test_extending_a_finished_run_equals_a_longer_run_from_scratch(
     assert json.loads((out / "summary.json").read_text())["iteration"] == 8
 
 
-def test_resume_names_each_differing_key(tmp_path: Path, full: tuple[Path, Path, dict[str, Any]]) -> None:
+def test_resume_names_each_differing_key(
+    tmp_path: Path, full: tuple[Path, Path, dict[str, Any]], compilations: Any
+) -> None:
     spec, _, _ = full
     out = copy_run(full, tmp_path / "out")
-    t0 = time.perf_counter()
+    counter = compilations()
+    counter.__enter__()
     with pytest.raises(ConfigError) as info:
         run_spec(spec, ["qd.num_iterations=12", "emitter.iso_sigma=0.02"], out, resume=True)
     assert str(info.value).startswith(
@@ -139,7 +142,8 @@ def test_resume_names_each_differing_key(tmp_path: Path, full: tuple[Path, Path,
     )
     with pytest.raises(ConfigError, match=r"--resume: expected a length of at least the 4 log points"):
         run_spec(spec, ["qd.num_iterations=4"], out, resume=True)
-    assert time.perf_counter() - t0 < 5.0  # before anything compiles
+    counter.__exit__()
+    assert counter.count == 0  # refused before anything compiles
 
 
 @pytest.mark.parametrize(
@@ -285,17 +289,15 @@ def test_ctrl_c_while_compiling_exits_at_once(tmp_path: Path) -> None:
         return b"compiling map_elites on arm" in seen
 
     _wait_for(compiling, proc)
-    t0 = time.monotonic()
     proc.send_signal(signal.SIGINT)
-    proc.wait(timeout=60)
-    elapsed = time.monotonic() - t0
+    proc.wait(timeout=120)
     os.set_blocking(proc.stderr.fileno(), True)
     err = (seen + proc.stderr.read()).decode()
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert "qdrl: interrupted before the first log point of 4; nothing saved" in err
     assert "resume with" not in err
-    assert elapsed < 5.0, elapsed
+    assert "compiled map_elites on arm in" not in err  # it did not wait for the compilation to end
     assert not (out / "metrics.csv").exists()
 
 

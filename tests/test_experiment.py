@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -139,25 +140,23 @@ def test_extending_an_rl_run_equals_a_longer_run_from_scratch(tmp_path: Path) ->
     ],
 )
 def test_bad_spec_fails_fast_with_the_key(
-    tmp_path: Path, override: str, message: str, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, override: str, message: str, capsys: pytest.CaptureFixture[str], compilations: Any
 ) -> None:
-    t0 = time.perf_counter()
-    code = main(["run", str(write_spec(tmp_path)), "--set", override, "--out", str(tmp_path / "o")])
+    with compilations() as compiled:
+        code = main(["run", str(write_spec(tmp_path)), "--set", override, "--out", str(tmp_path / "o")])
     assert code == 2
     assert message in capsys.readouterr().err
-    assert time.perf_counter() - t0 < 10.0
+    assert compiled.count == 0
     assert not (tmp_path / "o" / "checkpoints").exists()
 
 
 def test_bad_spec_fails_fast_from_a_fresh_process(tmp_path: Path) -> None:
     spec = write_spec(tmp_path)
-    t0 = time.perf_counter()
     res = subprocess.run(
         _cli("run", str(spec), "--set", "train.batch_size=-1"), capture_output=True, text=True, env=os.environ.copy()
     )
     assert res.returncode == 2
     assert "train.batch_size: expected a positive integer, got -1" in res.stderr
-    assert time.perf_counter() - t0 < 10.0
 
 
 def test_list_shows_specs_algorithms_and_tasks(capsys: pytest.CaptureFixture[str]) -> None:

