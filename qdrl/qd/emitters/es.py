@@ -120,6 +120,10 @@ class ESEmitter:
         self.batch_size = self.config.offspring
         _, self.unravel = ravel_pytree(self.genotype_example)
 
+    def log_metrics(self, state: ESState) -> dict[str, Array]:
+        """Restarts of the search from an elite so far."""
+        return {"restarts": state.restarts}
+
     def _flat(self, genotypes: Genotype) -> Array:
         return jax.vmap(lambda g: ravel_pytree(g)[0])(genotypes)
 
