@@ -506,6 +506,8 @@ def _summary(s: _Session, state: Any) -> dict[str, Any]:
     if not s.primary:
         return summary
     summary.update(alg.finish(state, s.rows, s.out_dir))
+    if s.log.plots and alg.plot is not None:
+        alg.plot(state, s.rows, s.out_dir)
     if s.log.plots and s.rows:
         plotting.plot_curves(
             s.rows, s.out_dir / "plots", x_keys=plotting.default_x_keys(s.rows),

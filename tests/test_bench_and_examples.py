@@ -107,7 +107,9 @@ def test_bench_unknown_name(capsys: pytest.CaptureFixture[str]) -> None:
     assert "unknown benchmark 'nope'" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("script", ["ask_tell_numpy.py", "train_sac.py"])
+@pytest.mark.parametrize(
+    "script", ["ask_tell_numpy.py", pytest.param("train_sac.py", marks=pytest.mark.slow)]  # SAC learning: slow
+)
 def test_example_runs(script: str) -> None:
     res = subprocess.run([sys.executable, str(ROOT / "examples" / script)], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -223,7 +225,7 @@ def test_hlo_profile_imports_only_jax_and_the_standard_library() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert json.loads(out.stdout.replace("'", '"')) == ["qdrl", "qdrl._quiet", "qdrl.hlo_profile"]
+    assert json.loads(out.stdout.replace("'", '"')) == ["qdrl", "qdrl._quiet", "qdrl._version", "qdrl.hlo_profile"]
 
 
 def test_compile_timed_times_the_executable_it_returns() -> None:
@@ -302,7 +304,10 @@ def test_kernel_summary_finds_the_scanned_program_and_counts_its_kernels_per_ste
     assert len(main["top"]) <= 3 and sum(t["count"] for t in main["top"]) <= main["kernels"]
     assert any(m.startswith("jit__lambda#") for m in summary["modules"])
 
-@pytest.mark.parametrize("script", ["map_elites_function.py", "diayn_skills.py", "pga_me_brax.py"])
+@pytest.mark.parametrize(
+    # The brax example compiles halfcheetah's physics in three programs: slow.
+    "script", ["map_elites_function.py", "diayn_skills.py", pytest.param("pga_me_brax.py", marks=pytest.mark.slow)]
+)
 def test_example_runs_at_its_small_size(script: str, tmp_path: Path) -> None:
     """Each example at the size its QDRL_EXAMPLE_SIZE=small gives (the brax one compiles brax
     physics three times: start, chunk, replay)."""

@@ -49,6 +49,7 @@ def test_chunk_compiles_once_and_counts_steps() -> None:
     assert np.isfinite(float(metrics["critic_loss"]))
 
 
+@pytest.mark.slow  # learning
 @pytest.mark.parametrize("name", ["sac", "td3"])
 def test_agent_learns_point_task(name: str) -> None:
     trainer = _trainer(name)

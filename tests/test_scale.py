@@ -84,26 +84,45 @@ def repertoire(out: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+Runs = tuple[Path, dict[str, dict[str, Any]]]
+
+
+def _pairs(tmp: Path, specs: dict[str, dict[str, Any]], extra: dict[str, dict[str, Any]]) -> Runs:
+    """Each spec on 1 and 2 devices (`<name>1`, `<name>2`), and the `extra` jobs, in one subprocess."""
+    jobs = {f"{name}{d}": {"spec": on_devices(spec, d), "out": str(tmp / f"{name}{d}")}
+            for name, spec in specs.items() for d in (1, 2)}
+    jobs.update(extra)
+    return tmp, dict(zip(jobs, run_worker(list(jobs.values())), strict=True))
+
+
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict[str, Any]]]:
-    """Every spec on 1 and 2 devices, a 2-device run resumed, and a batch that does not split."""
+def runs(tmp_path_factory: pytest.TempPathFactory) -> Runs:
+    """MAP-Elites and SAC on 1 and 2 devices, a 2-device run resumed, and batches that do not split."""
     tmp = tmp_path_factory.mktemp("scale")
-    jobs = []
-    for name, spec in (("arm", ARM), ("pga_me", PGA_ME), ("sac", SAC), ("pbt", PBT)):
-        for d in (1, 2):
-            jobs.append({"spec": on_devices(spec, d), "out": str(tmp / f"{name}{d}")})
-    jobs.append({"spec": on_devices(ARM, 2), "out": str(tmp / "arm2"), "resume": True, "drop_last": True})
-    jobs.append({"spec": on_devices(ARM, 2, emitter={"batch_size": 15}), "out": str(tmp / "odd")})
-    jobs.append({"spec": on_devices(SAC, 2, train={"num_envs": 3, "eval_every": 129}), "out": str(tmp / "odd")})
-    jobs.append({"spec": on_devices(ARM, 3), "out": str(tmp / "odd")})
-    return tmp, run_worker(jobs)
+    return _pairs(tmp, {"arm": ARM, "sac": SAC}, {
+        "resumed": {"spec": on_devices(ARM, 2), "out": str(tmp / "arm2"), "resume": True, "drop_last": True},
+        "odd_arm": {"spec": on_devices(ARM, 2, emitter={"batch_size": 15}), "out": str(tmp / "odd")},
+        "odd_sac": {"spec": on_devices(SAC, 2, train={"num_envs": 3, "eval_every": 129}), "out": str(tmp / "odd")},
+        "too_many": {"spec": on_devices(ARM, 3), "out": str(tmp / "odd")},
+    })
 
 
-@pytest.mark.parametrize("name", ["arm", "pga_me"])
-def test_map_elites_two_devices_bit_exact(runs: tuple[Path, list[dict[str, Any]]], name: str) -> None:
+@pytest.fixture(scope="module")
+def slow_runs(tmp_path_factory: pytest.TempPathFactory) -> Runs:
+    """PGA-ME and PBT on 1 and 2 devices (each compiles programs of its own: `-m slow`)."""
+    return _pairs(tmp_path_factory.mktemp("scale_slow"), {"pga_me": PGA_ME, "pbt": PBT}, {})
+
+
+def _runs_of(name: str, request: pytest.FixtureRequest) -> Runs:
+    runs_: Runs = request.getfixturevalue("slow_runs" if name in ("pga_me", "pbt") else "runs")
+    return runs_
+
+
+@pytest.mark.parametrize("name", ["arm", pytest.param("pga_me", marks=pytest.mark.slow)])
+def test_map_elites_two_devices_bit_exact(request: pytest.FixtureRequest, name: str) -> None:
     """Offspring evaluated split over 2 devices, the repertoire replicated: the same repertoire
     and metrics, bit for bit, as on one device (the arm, and PGA-ME on the point maze)."""
-    tmp, _ = runs
+    tmp, _ = _runs_of(name, request)
     one, two = tmp / f"{name}1", tmp / f"{name}2"
     for k, v in repertoire(one).items():
         np.testing.assert_array_equal(repertoire(two)[k], v, err_msg=k)
@@ -113,12 +132,12 @@ def test_map_elites_two_devices_bit_exact(runs: tuple[Path, list[dict[str, Any]]
         np.testing.assert_array_equal(m2[k], v, err_msg=k)
 
 
-@pytest.mark.parametrize("name", ["sac", "pbt"])
-def test_off_policy_two_devices_match(runs: tuple[Path, list[dict[str, Any]]], name: str) -> None:
+@pytest.mark.parametrize("name", ["sac", pytest.param("pbt", marks=pytest.mark.slow)])
+def test_off_policy_two_devices_match(request: pytest.FixtureRequest, name: str) -> None:
     """SAC with its environments and gradient batches split over 2 devices, and PBT with its
     members split: the same metrics to float32 rounding (rtol 1e-5). Not bit-exact: a mean
     over a split batch (SAC's losses; PBT's mean of member metrics) is summed in another order."""
-    tmp, _ = runs
+    tmp, _ = _runs_of(name, request)
     m1, m2 = metrics(tmp / f"{name}1"), metrics(tmp / f"{name}2")
     assert m1["grad_steps"][-1] > 0
     for k, v in m1.items():
@@ -126,24 +145,24 @@ def test_off_policy_two_devices_match(runs: tuple[Path, list[dict[str, Any]]], n
     np.testing.assert_array_equal(m2["eval_return"], m1["eval_return"])  # a few rounding bits do not move it
 
 
-def test_two_device_checkpoint_resumes(runs: tuple[Path, list[dict[str, Any]]]) -> None:
+def test_two_device_checkpoint_resumes(runs: Runs) -> None:
     """A checkpoint written on 2 devices resumes on 2 devices to the same end."""
     _, summaries = runs
-    finished, resumed = summaries[1], summaries[8]
+    finished, resumed = summaries["arm2"], summaries["resumed"]
     for k in ("qd_score", "coverage", "max_fitness", "evaluations"):
         assert resumed[k] == finished[k], k
 
 
-def test_batches_that_do_not_split_are_rejected(runs: tuple[Path, list[dict[str, Any]]]) -> None:
+def test_batches_that_do_not_split_are_rejected(runs: Runs) -> None:
     _, summaries = runs
-    assert summaries[9] == {"error": (
+    assert summaries["odd_arm"] == {"error": (
         "emitter.batch_size: expected a multiple of the device count 2 (the batch is split "
         "evenly over the devices), got 15")}
-    assert summaries[10]["error"].startswith("train.num_envs: expected a multiple of the device count 2")
-    assert summaries[11] == {"error": "experiment.devices: expected 0 (all) or at most the 2 visible device(s), got 3"}
+    assert summaries["odd_sac"]["error"].startswith("train.num_envs: expected a multiple of the device count 2")
+    assert summaries["too_many"] == {"error": "experiment.devices: expected 0 (all) or at most the 2 visible device(s), got 3"}
 
 
-def test_two_processes_give_the_single_process_repertoire(runs: tuple[Path, list[dict[str, Any]]]) -> None:
+def test_two_processes_give_the_single_process_repertoire(runs: Runs) -> None:
     """MAP-Elites as 2 jax.distributed processes on localhost (one CPU device each, gloo
     collectives) fills the repertoire of a single-process run bit for bit; process 0 alone
     writes the run directory."""

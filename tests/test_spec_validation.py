@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import json
 import math
 import re
 import subprocess
@@ -340,28 +341,53 @@ CLI_SAMPLE: tuple[tuple[str, tuple[str, ...], str], ...] = (
 )
 
 
-def _run_cli(case: tuple[str, tuple[str, ...], str], tmp: Path) -> subprocess.CompletedProcess[str]:
-    """The finished process of `qdrl run` on the case's spec."""
-    source, overrides, _ = case
-    if source.endswith(".toml"):
-        spec = SPECS[0].parent / source
-    else:
-        spec = tmp / f"inline_{abs(hash(source))}.toml"
-        spec.write_text(source)
-    args = [a for o in overrides for a in ("--set", o)]
-    cmd = [sys.executable, "-m", "qdrl.cli", "run", str(spec), *args, "--out", str(tmp / "never")]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+# One fresh process runs every case through `qdrl.cli.main`, each with its own stdout and
+# stderr: what a user's shell would show for each command.
+_CLI_DRIVER = """
+import contextlib, io, json, sys
+from qdrl.cli import main
+out = []
+for args in json.loads(sys.argv[1]):
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main(args)
+    out.append({"code": code, "stdout": stdout.getvalue(), "stderr": stderr.getvalue()})
+print("RESULT " + json.dumps(out))
+"""
 
 
-@pytest.mark.parametrize("case", CLI_SAMPLE, ids=lambda c: c[2].split(":")[0])
-def test_a_sample_through_the_cli_fails_in_one_line(case: tuple[str, tuple[str, ...], str], tmp_path: Path) -> None:
-    """The cases seen failing late or with a traceback before (2026-11-26), in fresh processes
-    (how long the process takes is a benchmark figure: `qdrl bench cli`)."""
-    res = _run_cli(case, tmp_path)
-    expected = case[2]
-    errors = [line for line in res.stderr.splitlines() if line.startswith("qdrl: error:")]
-    assert res.returncode == 2, res.stderr
-    assert len(errors) == 1 and errors[0].startswith(f"qdrl: error: {expected}"), res.stderr
-    assert res.stderr.splitlines()[-1] == errors[0]
-    assert "Traceback" not in res.stderr and res.stdout == ""
-    assert not (tmp_path / "never").exists()
+@pytest.fixture(scope="module")
+def cli_results(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict[str, Any]]]:
+    """Each case of CLI_SAMPLE through `qdrl run`, in one fresh process (the `qdrl` command's
+    imports; how long they take is a benchmark figure: `qdrl bench cli`)."""
+    tmp = tmp_path_factory.mktemp("cli")
+    commands = []
+    for i, (source, overrides, _) in enumerate(CLI_SAMPLE):
+        if source.endswith(".toml"):
+            spec = SPECS[0].parent / source
+        else:
+            spec = tmp / f"inline_{i}.toml"
+            spec.write_text(source)
+        sets = [a for o in overrides for a in ("--set", o)]
+        commands.append(["run", str(spec), *sets, "--out", str(tmp / f"never_{i}")])
+    done = subprocess.run(
+        [sys.executable, "-c", _CLI_DRIVER, json.dumps(commands)], capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    line = next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))
+    return tmp, json.loads(line.removeprefix("RESULT "))
+
+
+@pytest.mark.parametrize("index", range(len(CLI_SAMPLE)), ids=[c[2].split(":")[0] for c in CLI_SAMPLE])
+def test_a_sample_through_the_cli_fails_in_one_line(
+    index: int, cli_results: tuple[Path, list[dict[str, Any]]]
+) -> None:
+    """The cases seen failing late or with a traceback before (2026-11-26)."""
+    tmp, results = cli_results
+    res, expected = results[index], CLI_SAMPLE[index][2]
+    errors = [line for line in res["stderr"].splitlines() if line.startswith("qdrl: error:")]
+    assert res["code"] == 2, res["stderr"]
+    assert len(errors) == 1 and errors[0].startswith(f"qdrl: error: {expected}"), res["stderr"]
+    assert res["stderr"].splitlines()[-1] == errors[0]
+    assert "Traceback" not in res["stderr"] and res["stdout"] == ""
+    assert not (tmp / f"never_{index}").exists()

@@ -140,8 +140,10 @@ class Algorithm(NamedTuple):
     `placement`'s devices; `chunk` runs one log interval (a `lax.scan` of iterations).
     `log_row(state, metrics)` turns a chunk's result into one row (host values; it
     must include `env_steps`); `finish(state, rows, out_dir)` writes the final
-    artefacts and returns extra summary fields. `run_context`, when given, is entered
-    around the compiled calls (CMA-ES: one LAPACK thread for its eigendecompositions).
+    artefacts (exports) and returns extra summary fields; `plot(state, rows, out_dir)`
+    draws the final figures into out_dir/plots (called unless `log.plots` is off).
+    `run_context`, when given, is entered around the compiled calls (CMA-ES: one
+    LAPACK thread for its eigendecompositions).
     """
 
     task: str  # what the run runs on (a task or environment name)
@@ -153,6 +155,7 @@ class Algorithm(NamedTuple):
     log_row: Callable[[Any, Any], Row]
     finish: Callable[[Any, list[Row], Path], dict[str, Any]]
     placement: Placement
+    plot: Callable[[Any, list[Row], Path], None] | None = None
     state_axes: Any = None  # which axis of each part of the state is split over the devices
     run_context: Callable[[], AbstractContextManager[Any]] | None = None
     descriptor_space: DescriptorSpace | None = None

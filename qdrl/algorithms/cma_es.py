@@ -24,6 +24,7 @@ from qdrl.algorithms.base import (
     Recipe,
     Row,
     Sections,
+    last_values,
 )
 from qdrl.algorithms.task_spec import make_task_of, parse_task
 from qdrl.config import Nested, PositiveInt, build
@@ -58,14 +59,12 @@ def _parse(spec: Mapping[str, Any], exp: ExperimentConfig) -> Sections:
 
 
 def _log_row(state: CMAESRunState, metrics: Any) -> Row:
-    m = jax.device_get(metrics)
     return {
         "generation": int(state.generation),
         "evaluations": int(state.evaluations),
         "env_steps": int(state.env_steps),
         "best_fitness": float(state.best_fitness),
-        "generation_best_fitness": float(np.asarray(m["generation_best_fitness"])[-1]),
-        "generation_mean_fitness": float(np.asarray(m["generation_mean_fitness"])[-1]),
+        **last_values(jax.device_get(metrics), ("generation_best_fitness", "generation_mean_fitness")),
         "sigma": float(state.es.sigma),
         "restarts": int(state.restarts),
     }

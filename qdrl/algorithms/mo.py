@@ -18,6 +18,7 @@ global front, the per-cell hypervolumes and a few cells' fronts.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -36,7 +37,7 @@ from qdrl.algorithms.base import (
     Recipe,
     Row,
     Sections,
-    scalar,
+    last_values,
 )
 from qdrl.algorithms.qd import (
     Container,
@@ -119,9 +120,7 @@ def mo_log_row(state: Any, metrics: Any, task: Task) -> Row:
         "evaluations": int(state.evaluations),
         "env_steps": int(state.env_steps),
     }
-    for key, values in m.items():
-        if key != "added":
-            row[key] = scalar(np.asarray(values)[-1])
+    row.update(last_values(m, [k for k in m if k != "added"]))
     if "global_hypervolume" not in row:
         hv = exact_hypervolumes(jax.device_get(state.repertoire), _reference(task))
         row.update({k: v for k, v in hv.items() if k != "cell_hypervolumes"})
@@ -144,19 +143,14 @@ def _metrics(task: Task) -> Callable[[Any, float], dict[str, Any]]:
     return metrics
 
 
-def mo_finish(container: Any, out_dir: Path, task: Task, export_name: str, algorithm: str) -> dict[str, Any]:
-    """The global front (front.csv and its plot), the container's export, hypervolume plots."""
-    ref = _reference(task)
-    label, title = algorithm, f"{algorithm} on {task.name}"
-    front = global_front(container)
-    hv = exact_hypervolumes(container, ref)
-    write_front(front, out_dir / "front.csv")
-    export_solutions(container, out_dir, export_name)
+def mo_plot(container: Any, out_dir: Path, task: Task, algorithm: str) -> None:
+    """The global front against the true one where known; MOME: per-cell hypervolumes and fronts."""
+    ref, title = _reference(task), f"{algorithm} on {task.name}"
     plotting.plot_pareto_front(
-        {label: front}, out_dir / "plots" / "front.png", reference=ref,
+        {algorithm: global_front(container)}, out_dir / "plots" / "front.png", reference=ref,
         true_front=None if task.true_front is None else task.true_front(), title=title,
     )
-    cells = hv.pop("cell_hypervolumes", None)
+    cells = exact_hypervolumes(container, ref).get("cell_hypervolumes")
     if cells is not None:
         plotting.plot_cell_hypervolumes(
             container.cells, cells, out_dir / "plots" / "cell_hypervolumes.png",
@@ -166,6 +160,16 @@ def mo_finish(container: Any, out_dir: Path, task: Task, export_name: str, algor
             np.asarray(container.fitnesses), cells, out_dir / "plots" / "cell_fronts.png",
             reference=ref, title=title,
         )
+
+
+def mo_finish(container: Any, out_dir: Path, task: Task, export_name: str) -> dict[str, Any]:
+    """The global front (front.csv), the container's export, and the exact hypervolumes."""
+    ref = _reference(task)
+    front = global_front(container)
+    hv = exact_hypervolumes(container, ref)
+    hv.pop("cell_hypervolumes", None)
+    write_front(front, out_dir / "front.csv")
+    export_solutions(container, out_dir, export_name)
     summary: dict[str, Any] = {
         "reference_point": list(ref),
         "global_front_size": len(front),
@@ -197,7 +201,8 @@ MOME_CONTAINER = Container(
     wrap=_wrap_mome,
     metrics=_metrics,
     log_row=mo_log_row,
-    finish=lambda rep, out_dir, task, algorithm: mo_finish(rep, out_dir, task, "repertoire", algorithm),
+    finish=lambda rep, out_dir, task, algorithm: mo_finish(rep, out_dir, task, "repertoire"),
+    plot=mo_plot,
     progress_keys=("moqd_score", "global_hypervolume", "coverage", "evaluations_per_s"),
 )
 MOME = qd_recipe(
@@ -262,9 +267,8 @@ def _build_population(sections: Sections, ctx: BuildContext, survival: Survival)
         init=init,
         chunk=lambda state: me.run(state, qd.log_every),
         log_row=lambda state, metrics: mo_log_row(state, metrics, task),
-        finish=lambda state, rows, out_dir: mo_finish(
-            jax.device_get(state.repertoire), out_dir, task, "population", ctx.algorithm
-        ),
+        finish=lambda state, rows, out_dir: mo_finish(jax.device_get(state.repertoire), out_dir, task, "population"),
+        plot=lambda state, rows, out_dir: mo_plot(jax.device_get(state.repertoire), out_dir, task, ctx.algorithm),
         placement=ctx.placement,
         state_axes=me.state_axes,
         descriptor_space=DescriptorSpace(task.descriptor_low, task.descriptor_high, task.descriptor_names),
@@ -272,15 +276,13 @@ def _build_population(sections: Sections, ctx: BuildContext, survival: Survival)
     )
 
 
-def population_recipe(survival: Survival, description: str) -> Recipe:
-    """The recipe of a Pareto population with `survival`'s rule ("nsga2" or "spea2")."""
-    return Recipe(
-        parse=lambda spec, exp: _parse_population(spec, exp, survival),
-        build=lambda sections, ctx: _build_population(sections, ctx, survival),
-        length_key="qd.num_iterations",
-        description=description,
+_SURVIVALS: tuple[tuple[Survival, str], ...] = (
+    ("nsga2", "NSGA-II (Deb et al. 2002)"), ("spea2", "SPEA2 (Zitzler et al. 2001)"),
+)
+NSGA2, SPEA2 = (
+    Recipe(
+        functools.partial(_parse_population, survival=survival),
+        functools.partial(_build_population, survival=survival), "qd.num_iterations", description,
     )
-
-
-NSGA2 = population_recipe("nsga2", "NSGA-II (Deb et al. 2002)")
-SPEA2 = population_recipe("spea2", "SPEA2 (Zitzler et al. 2001)")
+    for survival, description in _SURVIVALS
+)

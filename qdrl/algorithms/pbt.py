@@ -13,6 +13,7 @@ devices is left to XLA (a gather of the chosen members).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -34,7 +35,13 @@ from qdrl.algorithms.base import (
     Sections,
     scalar,
 )
-from qdrl.algorithms.rl import archive_labels, make_env, parse_off_policy, write_archive
+from qdrl.algorithms.rl import (
+    archive_labels,
+    make_env,
+    parse_off_policy,
+    plot_archive,
+    write_archive,
+)
 from qdrl.config import ConfigError, build
 from qdrl.off_policy import TrainState, make_trainer
 from qdrl.placement import check_divisible
@@ -137,8 +144,8 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         row.update({k: scalar(v) for k, v in m.items()})
         return row
 
-    def finish(state: PBTState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
-        write_archive(state.archive, archive_cfg, labels, out_dir, title)
+    def plot(state: PBTState, rows: list[Row], out_dir: Path) -> None:
+        plot_archive(state.archive, archive_cfg, labels, out_dir, title)
         members = {
             f"member {i}": [
                 {"member_env_steps": r["member_env_steps"], "eval_return": r[f"eval_return_m{i}"]} for r in rows
@@ -150,6 +157,10 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
                 members, "eval_return", "member_env_steps", out_dir / "plots" / "population.png",
                 title=f"{title}: each member's evaluation return",
             )
+
+    def finish(state: PBTState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
+        del rows
+        write_archive(state.archive, out_dir)
         final = pbt.get_hparams(jax.device_get(state.population), space)
         shapes = jax.eval_shape(trainer.init, jax.random.PRNGKey(0))
         return {
@@ -171,21 +182,17 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         chunk=chunk,
         log_row=log_row,
         finish=finish,
+        plot=plot,
         placement=place,
         state_axes=PBT_AXES,
         descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),
     )
 
 
-def pbt_recipe(agent_name: str, description: str) -> Recipe:
-    """The recipe of PBT over `agent_name` ("sac" or "td3") agents."""
-    return Recipe(
-        parse=lambda spec, exp: parse_pbt(spec, exp, agent_name),
-        build=lambda sections, ctx: _build(sections, ctx, agent_name),
-        length_key="train.total_env_steps",
-        description=description,
+SAC_PBT, TD3_PBT = (
+    Recipe(
+        functools.partial(parse_pbt, agent_name=agent), functools.partial(_build, agent_name=agent),
+        "train.total_env_steps", f"PBT (Jaderberg et al. 2017) of {agent.upper()} agents",
     )
-
-
-SAC_PBT = pbt_recipe("sac", "PBT (Jaderberg et al. 2017) of SAC agents")
-TD3_PBT = pbt_recipe("td3", "PBT (Jaderberg et al. 2017) of TD3 agents")
+    for agent in ("sac", "td3")
+)

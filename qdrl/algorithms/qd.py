@@ -450,7 +450,8 @@ class Container:
     it needs of the others, e.g. the task's objectives) and returns them;
     `wrap(cells, sections, task, example)` is the empty container on the repertoire's
     cells; `metrics(task)` the QD loop's metrics function; `log_row(state, metrics,
-    task)` and `finish(repertoire, out_dir, task, algorithm)` replace the plain ones.
+    task)`, `finish(repertoire, out_dir, task, algorithm)` and `plot(...)` (same
+    arguments) replace the plain ones.
     """
 
     parse: Callable[[Mapping[str, Any], Sections, ExperimentConfig], Sections]
@@ -458,6 +459,7 @@ class Container:
     metrics: Callable[[Task], Callable[[Any, float], dict[str, Any]]]
     log_row: Callable[[Any, Any, Task], Row]
     finish: Callable[[Any, Path, Task, str], dict[str, Any]]
+    plot: Callable[[Any, Path, Task, str], None]
     progress_keys: tuple[str, ...]
 
 
@@ -557,10 +559,8 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
     return row
 
 
-def write_repertoire(rep: Any, out_dir: Path, task: Task, title: str) -> None:
-    """A QD run's final repertoire: repertoire.npz, repertoire.csv and plots/repertoire.png."""
-    export_npz(rep, out_dir / "repertoire.npz")
-    write_csv(rep, out_dir / "repertoire.csv")
+def plot_repertoire(rep: Any, out_dir: Path, task: Task, title: str) -> None:
+    """A QD run's final repertoire drawn into plots/repertoire.png."""
     plotting.plot_repertoire(
         rep, out_dir / "plots" / "repertoire.png", task.descriptor_low, task.descriptor_high,
         title=title, labels=task.descriptor_names,
@@ -630,10 +630,19 @@ def _build(
         rep = jax.device_get(state.repertoire)
         if container is not None:
             return container.finish(rep, out_dir, task, ctx.algorithm)
-        write_repertoire(rep, out_dir, task, title)
+        export_npz(rep, out_dir / "repertoire.npz")
+        write_csv(rep, out_dir / "repertoire.csv")
         extra = source.summary(config) if source.summary is not None else {}
         labels = {"algorithm": ctx.algorithm, "task": task.name}
         return {"qd_offset": task.qd_offset, **reevaluated(qd, qd_parts, rep, out_dir, ctx.seed, labels), **extra}
+
+    def plot(state: Any, rows: list[Row], out_dir: Path) -> None:
+        del rows
+        rep = jax.device_get(state.repertoire)
+        if container is not None:
+            container.plot(rep, out_dir, task, ctx.algorithm)
+        else:
+            plot_repertoire(rep, out_dir, task, title)
 
     resolved = {**sections, **source.tables(config)}
     return Algorithm(
@@ -647,6 +656,7 @@ def _build(
         chunk=lambda state: map_elites().run(state, qd.log_every),
         log_row=log_row,
         finish=finish,
+        plot=plot,
         placement=ctx.placement,
         state_axes=qd_state_axes(parts.emitter),
         run_context=lapack,

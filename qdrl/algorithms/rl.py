@@ -8,6 +8,7 @@ Sections: `[env]`, `[agent]` (the agent's config), `[train]` (`qdrl.off_policy.T
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, NamedTuple
@@ -36,7 +37,7 @@ from qdrl.placement import check_divisible
 from qdrl.qd.repertoires import CellRepertoire, export_npz, passive_archive, write_csv
 from qdrl.qd.repertoires.passive import feed
 
-__all__ = ["SAC", "TD3", "ArchiveConfig", "EnvConfig", "RLState", "archive_labels", "write_archive"]
+__all__ = ["SAC", "TD3", "ArchiveConfig", "EnvConfig", "RLState", "archive_labels", "plot_archive", "write_archive"]
 
 EnvName = Annotated[str, OneOf(env_names)]
 StateDescriptor = Annotated[str, OneOf(lambda: STATE_DESCRIPTORS)]
@@ -128,14 +129,20 @@ def archive_labels(env: Any, archive: ArchiveConfig) -> tuple[str, ...]:
     return names if len(names) == size else tuple(f"descriptor {i}" for i in range(size))
 
 
-def write_archive(archive: CellRepertoire, config: ArchiveConfig, labels: tuple[str, ...], out_dir: Path, title: str) -> None:
-    """The passive archive as QD runs write their repertoire: archive.npz (every cell),
-    archive.csv (one row per filled cell) and plots/archive.png."""
+def write_archive(archive: CellRepertoire, out_dir: Path) -> None:
+    """The passive archive as QD runs write their repertoire: archive.npz (every cell) and
+    archive.csv (one row per filled cell)."""
     archive = jax.device_get(archive)
     export_npz(archive, out_dir / "archive.npz")
     write_csv(archive, out_dir / "archive.csv")
+
+
+def plot_archive(
+    archive: CellRepertoire, config: ArchiveConfig, labels: tuple[str, ...], out_dir: Path, title: str
+) -> None:
+    """The passive archive drawn into plots/archive.png."""
     plotting.plot_repertoire(
-        archive, out_dir / "plots" / "archive.png", config.low, config.high,
+        jax.device_get(archive), out_dir / "plots" / "archive.png", config.low, config.high,
         title=f"{title}: passive archive ({config.descriptor} descriptor)", labels=labels,
     )
 
@@ -197,7 +204,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
 
     def finish(state: RLState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
         del rows
-        write_archive(state.archive, archive_cfg, labels, out_dir, title)
+        write_archive(state.archive, out_dir)
         return {"grad_steps": int(np.asarray(state.train.grad_steps))}
 
     return Algorithm(
@@ -209,21 +216,17 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         chunk=chunk,
         log_row=log_row,
         finish=finish,
+        plot=lambda state, rows, out_dir: plot_archive(state.archive, archive_cfg, labels, out_dir, title),
         placement=ctx.placement,
         state_axes=RLState(STATE_AXES, None),  # type: ignore[arg-type]
         descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),
     )
 
 
-def off_policy_recipe(agent: str, description: str) -> Recipe:
-    """The recipe of `agent` ("sac" or "td3") trained by the off-policy loop."""
-    return Recipe(
-        parse=lambda spec, exp: parse_off_policy(spec, exp, agent),
-        build=lambda sections, ctx: _build(sections, ctx, agent),
-        length_key="train.total_env_steps",
-        description=description,
+SAC, TD3 = (
+    Recipe(
+        functools.partial(parse_off_policy, agent=agent), functools.partial(_build, agent_name=agent),
+        "train.total_env_steps", f"{name} with a passive archive of its evaluations",
     )
-
-
-SAC = off_policy_recipe("sac", "SAC (Haarnoja et al. 2018) with a passive archive of its evaluations")
-TD3 = off_policy_recipe("td3", "TD3 (Fujimoto et al. 2018) with a passive archive of its evaluations")
+    for agent, name in (("sac", "SAC (Haarnoja et al. 2018)"), ("td3", "TD3 (Fujimoto et al. 2018)"))
+)

@@ -17,6 +17,7 @@ Sections: `[env]` (a task of `SKILL_TASKS`), `[agent]` (SAC), `[train]`, `[skill
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 from collections.abc import Mapping
 from pathlib import Path
@@ -47,6 +48,7 @@ from qdrl.algorithms.rl import (
     RLState,
     check_train_devices,
     eval_key,
+    plot_archive,
     rl_log_row,
     write_archive,
 )
@@ -169,7 +171,12 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
 
     def finish(state: RLState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
         del rows
-        write_archive(state.archive, archive_cfg, labels, out_dir, title)
+        write_archive(state.archive, out_dir)
+        return {"grad_steps": int(np.asarray(state.train.grad_steps))}
+
+    def plot(state: RLState, rows: list[Row], out_dir: Path) -> None:
+        del rows
+        plot_archive(state.archive, archive_cfg, labels, out_dir, title)
         ev = last_eval
         if not ev:  # a resumed run with no chunk left: evaluate once more
             ev = jax.device_get(jax.jit(evaluate)(state.train.agent, jax.random.fold_in(key0, 0xF1)))
@@ -186,7 +193,6 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
             walls=plotting.env_walls(base_env),
             labels=labels,
         )
-        return {"grad_steps": int(np.asarray(state.train.grad_steps))}
 
     return Algorithm(
         task=env_cfg.task,
@@ -199,23 +205,20 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         chunk=chunk,
         log_row=log_row,
         finish=finish,
+        plot=plot,
         placement=ctx.placement,
         state_axes=RLState(STATE_AXES, None),  # type: ignore[arg-type]
         descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),
     )
 
 
-def skills_recipe(base: Literal["diayn", "dads"], smerl: bool, description: str) -> Recipe:
-    """The recipe of DIAYN or DADS (`base`), with SMERL's gate if `smerl`."""
-    return Recipe(
-        parse=lambda spec, exp: parse_skills(spec, exp, base, smerl),
-        build=_build,
-        length_key="train.total_env_steps",
-        description=description,
-    )
-
-
-DIAYN = skills_recipe("diayn", False, "DIAYN (Eysenbach et al. 2019): skills that a discriminator tells apart")
-DADS = skills_recipe("dads", False, "DADS (Sharma et al. 2020): skills with predictable dynamics")
-SMERL_DIAYN = skills_recipe("diayn", True, "SMERL (Kumar et al. 2020) on DIAYN's diversity reward")
-SMERL_DADS = skills_recipe("dads", True, "SMERL (Kumar et al. 2020) on DADS's diversity reward")
+_VARIANTS: tuple[tuple[Literal["diayn", "dads"], bool, str], ...] = (
+    ("diayn", False, "DIAYN (Eysenbach et al. 2019): skills that a discriminator tells apart"),
+    ("dads", False, "DADS (Sharma et al. 2020): skills with predictable dynamics"),
+    ("diayn", True, "SMERL (Kumar et al. 2020) on DIAYN's diversity reward"),
+    ("dads", True, "SMERL (Kumar et al. 2020) on DADS's diversity reward"),
+)
+DIAYN, DADS, SMERL_DIAYN, SMERL_DADS = (
+    Recipe(functools.partial(parse_skills, base=base, smerl=smerl), _build, "train.total_env_steps", description)
+    for base, smerl, description in _VARIANTS
+)

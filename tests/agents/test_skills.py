@@ -388,6 +388,7 @@ def test_smerl_trains_through_the_loop_with_episode_returns(algo: str) -> None:
     assert np.isfinite(float(metrics[model_loss]))
 
 
+@pytest.mark.slow  # learning: the skill model's accuracy after training
 def test_diayn_tiny_run_discriminates_skills() -> None:
     """DIAYN on the open point maze: the discriminator separates 4 skills well above chance."""
     base = PointMazeEnv(episode_length=20, walls=())
