@@ -43,6 +43,7 @@ num_eval_envs = 4
 [log]
 checkpoint_every = 1
 progress = false
+plots = false  # the tests that read plots turn them on
 """
 
 
@@ -55,7 +56,7 @@ def write_spec(tmp_path: Path, algorithm: str = "sac", steps: int = 1000) -> Pat
 @pytest.mark.parametrize("algorithm", ["sac", "td3"])
 def test_run_writes_every_artefact(tmp_path: Path, algorithm: str) -> None:
     out = tmp_path / "out"
-    summary = run_spec(write_spec(tmp_path, algorithm), ["train.total_env_steps=600"], out)
+    summary = run_spec(write_spec(tmp_path, algorithm), ["train.total_env_steps=600", "log.plots=true"], out)
     for key in ("algorithm", "task", "seed", "env_steps", "wall_s", "compile_s", "env_steps_per_s", "eval_return"):
         assert key in summary, key
     assert summary["algorithm"] == algorithm and summary["task"] == "point"

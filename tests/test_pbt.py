@@ -214,8 +214,8 @@ def test_pbt_resume_restores_the_whole_population(
     # population, buffers, hyperparameters and keys) and ends where the 400-step run does.
     spec, full = sac_pbt_run
     out = tmp_path / "part"
-    part = run_spec(spec, ["train.total_env_steps=200"], out)
+    part = run_spec(spec, ["train.total_env_steps=200", "log.plots=false"], out)
     assert part["member_env_steps"] == 200
-    resumed = run_spec(spec, [], out, resume=True)
+    resumed = run_spec(spec, ["log.plots=false"], out, resume=True)
     for key in ("eval_return", "eval_return_median", "exploits", "coverage", "best_actor_lr"):
         assert resumed[key] == full[key], key

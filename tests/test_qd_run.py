@@ -42,6 +42,7 @@ init_batch_size = 32
 
 [log]
 progress = false
+plots = false  # the test that reads plots turns them on
 """
 
 
@@ -54,7 +55,7 @@ def write_spec(tmp_path: Path, algorithm: str = "map_elites", iterations: int = 
 @pytest.mark.parametrize("algorithm", ["map_elites", "cvt_map_elites"])
 def test_qd_run_writes_metrics_plots_and_exports(tmp_path: Path, algorithm: str) -> None:
     out = tmp_path / "out"
-    summary = run_spec(write_spec(tmp_path, algorithm), [], out)
+    summary = run_spec(write_spec(tmp_path, algorithm), ["log.plots=true"], out)
     for key in ("qd_score", "coverage", "max_fitness", "evaluations", "wall_s", "compile_s"):
         assert key in summary, key
     assert summary["evaluations"] == 32 + 40 * 32

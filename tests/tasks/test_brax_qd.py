@@ -150,10 +150,10 @@ def test_task_bounds_offsets_and_genotypes(evaluated: Evaluated) -> None:
         brax_qd.hopper_uni(backend="warp")
 
 
-# Each task compiles a brax rollout of its own; the default run keeps one task of each
-# descriptor kind (feet contact: halfcheetah_uni; final x-y with walls: ant_maze), the
-# others run with `-m slow`.
-DEFAULT = ("halfcheetah_uni", "ant_maze")
+# Each task compiles a brax rollout of its own; the default run checks the tasks that the
+# fitness tests below evaluate anyway (the ant's four, sharing `evaluated`) and one
+# feet-contact task (halfcheetah_uni); the other robots run with `-m slow`.
+DEFAULT = ("halfcheetah_uni", "ant_uni", "ant_omni", "ant_trap", "ant_maze")
 
 
 def _cases(names: list[str]) -> list[Any]:
