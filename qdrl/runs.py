@@ -33,8 +33,6 @@ from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import passive_archive, to_table
 
 if TYPE_CHECKING:
-    import pandas as pd
-
     from qdrl.qd.repertoires import CellRepertoire
 
 __all__ = [
@@ -150,7 +148,6 @@ def load_metrics(*paths: str | Path) -> pd.DataFrame:
         df = qdrl.load_metrics("runs/map_elites_arm", "runs/cvt_map_elites_arm")
         df.groupby(["spec", "evaluations"]).qd_score.mean()
     """
-
     frames = []
     for path in find_runs(list(paths)):
         run = LoadedRun(path)
@@ -169,7 +166,6 @@ def load_repertoires(*paths: str | Path) -> pd.DataFrame:
     Reads repertoire.csv / archive.csv; a run without one (interrupted) is read from
     its latest checkpoint.
     """
-
     frames = []
     for path in find_runs(list(paths)):
         run = LoadedRun(path)
@@ -186,7 +182,6 @@ class LoadedRun:
     the run did not finish), and on demand its `repertoire`, `table`, elites and rollouts."""
 
     def __init__(self, path: Path) -> None:
-
         if not path.is_dir():
             raise RunError(f"{path}: no such directory; expected a run directory written by `qdrl run`")
         if not (path / "config.toml").is_file():
