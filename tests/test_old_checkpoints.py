@@ -4,6 +4,11 @@ Each fixture is a tiny run of a packaged spec made by qdrl 0.1.0 (commit 71cd369
 resolved spec, its first log point's metrics and checkpoint, and the final state and
 summary that 0.1.0 reached after the second log point (`expected.json`). Resumed by this
 qdrl, the run must end in the same state (every array of the checkpoint) and summary.
+
+That record holds for the jax it was made with (`made_with`, the 3.12 and 3.13 locks):
+another jax (3.11's lock) rounds float arithmetic differently, so there the resumed run is
+checked for what does not depend on rounding: every array of the state by name, shape and
+dtype, the counters and names of the summary.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import zlib
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 import pytest
 
@@ -24,6 +30,16 @@ from qdrl.experiment import run
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "checkpoints_0.1.0"
 TIMED = ("wall_s", "compile_s", "run_s", "env_steps_per_s", "evaluations_per_s")
+
+
+COUNTERS = ("env_steps", "evaluations", "grad_steps", "iteration", "generation", "log_point")
+
+
+def state_layout(checkpoint_dir: Path) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Name -> (shape, dtype) of every array of the newest checkpoint."""
+    newest = sorted(checkpoint_dir.glob("step_*"))[-1]
+    with np.load(newest / "state.npz") as npz:
+        return {name: (npz[name].shape, str(npz[name].dtype)) for name in npz.files}
 
 
 def state_digest(checkpoint_dir: Path) -> str:
@@ -56,12 +72,20 @@ def _resume(name: str, tmp_path: Path) -> tuple[Path, dict[str, Any]]:
 
 @pytest.mark.parametrize("name", sorted(p.name for p in FIXTURES.iterdir()))
 def test_a_checkpoint_of_qdrl_0_1_0_resumes_bit_identically(name: str, tmp_path: Path) -> None:
+    layout = state_layout(FIXTURES / name / "checkpoints")
     out, summary = _resume(name, tmp_path)
     expected = json.loads((FIXTURES / name / "expected.json").read_text())
-    assert state_digest(out / "checkpoints") == expected["state"]
     got = _clean({k: v for k, v in summary.items() if k not in TIMED})
-    assert got == expected["summary"]
     assert len((out / "metrics.csv").read_text().splitlines()) == 3  # header, 0.1.0's row, this one's
+    assert state_layout(out / "checkpoints") == layout
+    if jax.__version__ == expected["made_with"]["jax"]:
+        assert state_digest(out / "checkpoints") == expected["state"]
+        assert got == expected["summary"]
+    else:
+        assert set(got) == set(expected["summary"])
+        for key, value in expected["summary"].items():
+            if key in COUNTERS or isinstance(value, str | list):
+                assert got[key] == value, key
 
 
 def test_a_checkpoint_of_another_layout_fails_in_one_line_naming_its_version(tmp_path: Path) -> None:
