@@ -390,7 +390,7 @@ def restore(
                 if data.dtype != dtype:
                     # Extension dtypes (bfloat16, float8) are stored as raw bytes.
                     data = data.view(dtype)
-                leaves.append(jnp.asarray(data))
+                leaves.append(jax.device_put(data))  # jnp.asarray compiles a program per shape
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
         raise CheckpointError(f"{STATE_FILE} is unreadable ({type(e).__name__}: {e})") from e
     return jax.tree_util.tree_unflatten(treedef, leaves), meta["metadata"]

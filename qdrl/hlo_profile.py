@@ -15,6 +15,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -217,7 +218,9 @@ def _trace_events(path: str | Path) -> tuple[str, list[tuple[str, str, float, fl
     for plane in device or planes:
         for line in plane.lines:
             for event in line.events:
-                stats = dict(event.stats)
+                with warnings.catch_warnings():  # jaxlib's event_stats type lacks __module__ (Python 3.12 warns)
+                    warnings.simplefilter("ignore", DeprecationWarning)
+                    stats = dict(event.stats)
                 if "hlo_op" not in stats and not device:
                     continue  # host planes: only XLA's thunks, not Python's frames
                 module = f"{stats.get('hlo_module', '?')}#{stats.get('program_id', '?')}"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
+import runpy
 import subprocess
 import sys
 from pathlib import Path
@@ -15,6 +15,17 @@ import pytest
 from qdrl.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_example(script: str, args: list[str], monkeypatch: pytest.MonkeyPatch,
+                capsys: pytest.CaptureFixture[str]) -> list[str]:
+    """Runs examples/`script` as `python examples/script args...` would, in this process (no
+    second start-up of jax), and returns the lines it printed."""
+    path = ROOT / "examples" / script
+    monkeypatch.setattr(sys, "argv", [str(path), *args])
+    capsys.readouterr()
+    runpy.run_path(str(path), run_name="__main__")
+    return capsys.readouterr().out.strip().splitlines()
 
 
 class Start(NamedTuple):
@@ -110,10 +121,8 @@ def test_bench_unknown_name(capsys: pytest.CaptureFixture[str]) -> None:
 @pytest.mark.parametrize(
     "script", ["ask_tell_numpy.py", pytest.param("train_sac.py", marks=pytest.mark.slow)]  # SAC learning: slow
 )
-def test_example_runs(script: str) -> None:
-    res = subprocess.run([sys.executable, str(ROOT / "examples" / script)], capture_output=True, text=True, timeout=300)
-    assert res.returncode == 0, res.stderr[-2000:]
-    last = res.stdout.strip().splitlines()[-1]
+def test_example_runs(script: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    last = run_example(script, [], monkeypatch, capsys)[-1]
     if script == "ask_tell_numpy.py":
         assert "iteration 100" in last and float(last.split("coverage")[1]) > 0.3
     else:
@@ -308,16 +317,14 @@ def test_kernel_summary_finds_the_scanned_program_and_counts_its_kernels_per_ste
     # The brax example compiles halfcheetah's physics in three programs: slow.
     "script", ["map_elites_function.py", "diayn_skills.py", pytest.param("pga_me_brax.py", marks=pytest.mark.slow)]
 )
-def test_example_runs_at_its_small_size(script: str, tmp_path: Path) -> None:
+def test_example_runs_at_its_small_size(
+    script: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     """Each example at the size its QDRL_EXAMPLE_SIZE=small gives (the brax one compiles brax
     physics three times: start, chunk, replay)."""
-    env = {**os.environ, "QDRL_EXAMPLE_SIZE": "small"}
-    res = subprocess.run(
-        [sys.executable, str(ROOT / "examples" / script), str(tmp_path / "out")],
-        capture_output=True, text=True, timeout=900, env=env, cwd=tmp_path,
-    )
-    assert res.returncode == 0, res.stderr[-2000:]
-    lines = res.stdout.strip().splitlines()
+    monkeypatch.setenv("QDRL_EXAMPLE_SIZE", "small")
+    monkeypatch.chdir(tmp_path)
+    lines = run_example(script, [str(tmp_path / "out")], monkeypatch, capsys)
     if script == "map_elites_function.py":
         assert float(lines[-1].split("coverage")[1]) > 0.5
     elif script == "diayn_skills.py":

@@ -91,23 +91,24 @@ def test_make_rejects_unknown_names() -> None:
     assert "point" in envs.env_names() and "halfcheetah" in envs.env_names()
 
 
-@pytest.fixture(scope="module")
-def hopper():  # type: ignore[no-untyped-def]
-    return envs.make("hopper", backend="spring", episode_length=1000)
-
-
-def test_brax_hopper_batched_rollout_terminates_and_resets(hopper) -> None:  # type: ignore[no-untyped-def]
-    env = hopper
-    assert (env.observation_size, env.action_size, env.descriptor_size) == (11, 3, 2)
+# brax's done flag becomes `terminated`, never `truncated`; auto-reset restarts the finished
+# envs. The pendulum (a small program) in the default run; the hopper (feet contacts) -m slow.
+@pytest.mark.parametrize(
+    ("name", "sizes"),
+    [("inverted_pendulum", (4, 1, 2)), pytest.param("hopper", (11, 3, 2), marks=pytest.mark.slow)],
+)
+def test_brax_batched_rollout_terminates_and_resets(name: str, sizes: tuple[int, int, int]) -> None:
+    env = envs.make(name, backend="spring", episode_length=1000)
+    assert (env.observation_size, env.action_size, env.descriptor_size) == sizes
 
     @jax.jit
     def go(key: jax.Array):  # type: ignore[no-untyped-def]
         s = reset_batch(env, key, 4)
-        policy = lambda obs, k: jax.random.uniform(k, (4, 3), minval=-1, maxval=1)  # noqa: E731
+        policy = lambda obs, k: jax.random.uniform(k, (4, env.action_size), minval=-1, maxval=1)  # noqa: E731
         return unroll(env, s, policy, key, 150)
 
     s, tr = go(jax.random.PRNGKey(0))
-    # random hopper falls over: terminations, never truncations, within 150 steps
+    # a random policy falls over: terminations, never truncations, within 150 steps
     assert float(tr.terminated.sum()) > 0
     assert float(tr.truncated.sum()) == 0
     assert np.all(np.isfinite(np.asarray(tr.reward)))

@@ -88,6 +88,7 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "qdrl.cli", *args]
 
 
+@pytest.mark.slow  # the driver is shared: tests/test_qd_run.py kills a MAP-Elites run in the default run
 def test_resume_after_sigkill_matches_an_uninterrupted_run(tmp_path: Path) -> None:
     spec = write_spec(tmp_path, steps=4000)  # 20 log points
     full = run_spec(spec, [], tmp_path / "full")

@@ -105,12 +105,23 @@ class Env(abc.ABC):
 
     # -- sizes, computed by abstract evaluation (no compilation, no real reset) --
 
+    def traced_reset(self, key: PRNGKey | None = None) -> jax.stages.Traced:
+        """`reset`, traced once per key type (a raw `PRNGKey` by default) and kept: its
+        output shapes give the sizes below, and `.lower().compile()` a program that resets
+        from any key of that type (`qdrl.rollout.fixed_start_state`). Tracing a brax
+        reset takes most of a second; a task traces it once."""
+        spec = jax.eval_shape(lambda: jax.random.PRNGKey(0)) if key is None else jax.ShapeDtypeStruct(
+            jnp.shape(key), key.dtype
+        )
+        cache: dict[tuple[Any, ...], jax.stages.Traced] = self.__dict__.setdefault("_traced_resets", {})
+        entry = (spec.shape, str(spec.dtype))
+        if entry not in cache:
+            cache[entry] = jax.jit(self.reset).trace(spec)
+        return cache[entry]
+
     def _shapes(self) -> EnvState:
-        cached: EnvState | None = getattr(self, "_shape_cache", None)
-        if cached is None:
-            cached = jax.eval_shape(self.reset, jax.random.PRNGKey(0))
-            self._shape_cache = cached
-        return cached
+        shapes: EnvState = self.traced_reset().out_info
+        return shapes
 
     @property
     def observation_size(self) -> int:
