@@ -86,6 +86,7 @@ def test_the_trap_stops_an_ant_thrown_into_it() -> None:
     assert x[1].max() > 12.5
 
 
+@pytest.mark.slow  # the same walls as the trap's (ant_xml_with_walls), another program to compile
 def test_the_maze_stops_an_ant_thrown_at_a_wall() -> None:
     # towards the inner wall x = 20 (|y| <= 19.5), and past its end at y = 22
     x = _throw("antmaze", [(17.0, 0.0), (17.0, 22.0)])
