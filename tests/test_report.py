@@ -134,6 +134,11 @@ def test_a_sweep_is_not_one_run(runs: Path) -> None:
 
 def test_interquartile_mean_and_bootstrap_interval() -> None:
     assert float(iqm(np.arange(1.0, 9.0))) == pytest.approx(4.5)  # mean of 3, 4, 5, 6
+    trim_mean = pytest.importorskip("scipy.stats").trim_mean  # rliable's definition
+    for n in (1, 3, 4, 7, 10):
+        x = np.random.default_rng(n).normal(size=(n, 3))
+        np.testing.assert_allclose(iqm(x), trim_mean(x, 0.25, axis=0), rtol=1e-12)
+        np.testing.assert_allclose(iqm(x.T, axis=1), trim_mean(x.T, 0.25, axis=1), rtol=1e-12)
     values = np.array([[1.0, 10.0], [2.0, 10.0], [3.0, 10.0], [4.0, 10.0]])
     low, high = bootstrap_ci(values)
     assert low.shape == (2,) and low[0] < 2.5 < high[0] and low[1] == high[1] == 10.0

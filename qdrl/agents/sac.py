@@ -23,11 +23,10 @@ import haiku as hk
 import jax
 import jax.numpy as jnp
 import optax
-import rlax
 
 from qdrl import nets
 from qdrl.agents.base import Agent
-from qdrl.agents.common import Activation, Hidden, adam_step, check_size
+from qdrl.agents.common import Activation, Hidden, adam_step, check_size, critics_l2_loss
 from qdrl.config import PositiveFloat, PositiveUnitFloat, UnitFloat, check_fields
 from qdrl.types import Array, Metrics, Params, PRNGKey, Transition
 
@@ -152,7 +151,7 @@ def make_sac_losses(networks: SACNetworks, target_entropy: float) -> SACLosses:
             reward_scale * transitions.reward + discount * transitions.discount_mask * next_v
         )
         q = networks.critic.apply(critic_params, transitions.obs, transitions.action)
-        loss = jnp.mean(jnp.sum(rlax.l2_loss(q, target_q[..., None]), axis=-1))
+        loss = critics_l2_loss(q, target_q)
         return loss, {"q_mean": jnp.mean(q), "target_q_mean": jnp.mean(target_q)}
 
     def actor_loss(

@@ -22,11 +22,10 @@ import haiku as hk
 import jax
 import jax.numpy as jnp
 import optax
-import rlax
 
 from qdrl import nets
 from qdrl.agents.base import Agent
-from qdrl.agents.common import Activation, Hidden, adam_step, check_size
+from qdrl.agents.common import Activation, Hidden, adam_step, check_size, critics_l2_loss
 from qdrl.config import (
     NonNegativeFloat,
     PositiveFloat,
@@ -168,7 +167,7 @@ def make_td3_losses(networks: TD3Networks) -> TD3Losses:
             + discount * transitions.discount_mask * jnp.min(next_q, axis=-1)
         )
         q = networks.critic.apply(critic_params, transitions.obs, transitions.action)
-        loss = jnp.mean(jnp.sum(rlax.l2_loss(q, target_q[..., None]), axis=-1))
+        loss = critics_l2_loss(q, target_q)
         return loss, {"q_mean": jnp.mean(q), "target_q_mean": jnp.mean(target_q)}
 
     def actor_loss(policy_params: Params, critic_params: Params, obs: Array) -> Array:

@@ -11,11 +11,14 @@ the ready-made one.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from qdrl.config import NonNegativeInt, PositiveInt
-from qdrl.envs.jumanji import JumanjiEnv, snake_env
 from qdrl.tasks.base import Task
 from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, EpisodeDescriptor, policy_task
+
+if TYPE_CHECKING:
+    from qdrl.envs.jumanji import JumanjiEnv
 
 
 def jumanji_task(
@@ -83,6 +86,8 @@ def snake(
     mask (`qdrl.envs.jumanji.snake_observation`) and moves only where the mask
     allows.
     """
+    from qdrl.envs.jumanji import snake_env  # jumanji (~0.7 s to import) only when snake is built
+
     env = snake_env(episode_length, num_rows, num_cols, start_seed=start_seed)
     return jumanji_task(
         env,
