@@ -16,19 +16,27 @@ builder's keyword parameters (`[task]` keys) and a config built in Python
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import inspect
 import math
 import tomllib
 import types
 import typing
-from collections.abc import Callable, Collection, Hashable, Mapping, Sequence
+from collections.abc import Callable, Collection, Hashable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
 
 class ConfigError(ValueError):
     """A spec that cannot run: unknown key, wrong type or impossible value."""
+
+
+def did_you_mean(name: str, options: Iterable[str]) -> str:
+    """`"; did you mean 'x'?"` naming the options closest to a misspelt `name` (at most two), or
+    "" when none is close."""
+    close = difflib.get_close_matches(name, sorted(options), n=2, cutoff=0.6)
+    return f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -210,7 +218,21 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
             return value
     else:
         raise TypeError(f"unsupported config type {tp!r} at {where}")
-    raise ConfigError(f"{where}: expected {describe(tp)}, got {_show(value)}")
+    hint = did_you_mean(value, _names_of(tp)) if isinstance(value, str) else ""
+    raise ConfigError(f"{where}: expected {describe(tp)}, got {_show(value)}{hint}")
+
+
+def _names_of(tp: Any) -> set[str]:
+    """The names a string field of type `tp` accepts (its `OneOf` registry, its Literal values)."""
+    base, _, one_of = _annotation(tp)
+    names = set(one_of.names()) if one_of is not None else set()
+    origin = typing.get_origin(base)
+    if origin in (types.UnionType, typing.Union):
+        for arg in typing.get_args(base):
+            names |= _names_of(arg)
+    elif origin is typing.Literal:
+        names |= {a for a in typing.get_args(base) if isinstance(a, str)}
+    return names
 
 
 def _hints(owner: Any) -> dict[str, Any]:
@@ -316,7 +338,7 @@ def check_keys(cls: type[Any], data: Any, section: str) -> dict[str, Any]:
     unknown = sorted(set(data) - set(keys))
     if unknown:
         raise ConfigError(
-            f"{section}.{unknown[0]}: unknown key; expected one of {sorted(keys)}"
+            f"{section}.{unknown[0]}: unknown key{did_you_mean(unknown[0], keys)}; expected one of {sorted(keys)}"
         )
     return {k: coerce(v, keys[k][1], f"{section}.{k}") for k, v in data.items()}
 
@@ -372,7 +394,8 @@ def check_params(
     for key, value in params.items():
         if key not in accepted:
             label = f" for {owner}" if owner else ""
-            raise ConfigError(f"{section}.{key}: unknown key{label}; expected one of {accepted}")
+            hint = did_you_mean(key, accepted)
+            raise ConfigError(f"{section}.{key}: unknown key{label}{hint}; expected one of {accepted}")
         out[key] = coerce(value, hints[key], f"{section}.{key}") if key in hints else value
     return out
 

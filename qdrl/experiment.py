@@ -57,6 +57,7 @@ from qdrl.config import (
     as_table,
     build,
     check_table,
+    did_you_mean,
     dump_toml,
     load_toml,
 )
@@ -118,8 +119,8 @@ def check_spec(spec: Mapping[str, Any]) -> CheckedSpec:
     unknown = sorted(set(spec) - known)
     if unknown:
         raise ConfigError(
-            f"{unknown[0]}: unknown section for algorithm {exp.algorithm!r}; "
-            f"expected sections {sorted(known)}"
+            f"{unknown[0]}: unknown section for algorithm {exp.algorithm!r}"
+            f"{did_you_mean(unknown[0], known)}; expected sections {sorted(known)}"
         )
     return CheckedSpec(exp, log, sections)
 
@@ -355,7 +356,8 @@ class _Session:
     start_chunk: int = 0
     wall_offset: float = 0.0
     run_s: float = 0.0
-    compile_s: float = 0.0
+    compile_s: float = 0.0  # the chunk's compilation
+    startup_s: float = 0.0  # this session's start: initial state, checkpoint, compilations
 
     @property
     def ckpt_dir(self) -> Path:
@@ -489,6 +491,7 @@ def _summary(s: _Session, state: Any) -> dict[str, Any]:
         "env_steps": int(final.get("env_steps", 0)),
         "wall_s": final.get("wall_s", 0.0),
         "compile_s": s.compile_s,
+        "startup_s": s.startup_s,
         "run_s": s.run_s,
     }
     if "env_steps_per_s" in final:
@@ -536,6 +539,15 @@ def run(
     s = _open(spec, out_dir, resume, overwrite, time.perf_counter())
     if on_start is not None:
         on_start(out_dir)
+    finished = _finished_summary(s) if resume else None
+    if finished is not None:
+        length_key = ALGORITHMS[s.exp.algorithm].length_key
+        print(
+            f"qdrl: --resume: {out_dir} is a finished run ({s.alg.num_chunks} of "
+            f"{s.alg.num_chunks} log points); nothing to run (to extend it, resume with a "
+            f"larger {length_key}: --set {length_key}=...)", file=sys.stderr,
+        )
+        return finished
     alg, exp, log = s.alg, s.exp, s.log
     what = f"{exp.algorithm} on {alg.task}" + (f" ({label})" if label else "")
     progress = RunProgress(log.progress and s.primary, what, alg.progress.unit, alg.progress.total)
@@ -561,11 +573,11 @@ def run(
         except checkpoint.CheckpointError as e:
             progress.close()
             raise ConfigError(f"--resume: {e}{_written_by(s.ckpt_dir)}") from None
-        startup_s = time.perf_counter() - t0
+        s.startup_s = time.perf_counter() - t0
         placement.barrier("compiled")  # processes that compiled faster wait for the others
-        progress.compiled(startup_s)
+        progress.compiled(s.compile_s, s.startup_s)
         if s.primary:
-            compile_cache.record(key, exp.algorithm, alg.task, startup_s, cold=cache["hits"] == 0)
+            compile_cache.record(key, exp.algorithm, alg.task, s.startup_s, cold=cache["hits"] == 0)
         if restored is not None:
             _resume_rows(s, meta, restored, skipped)
         elif s.primary and (out_dir / "metrics.csv").exists():
@@ -579,6 +591,18 @@ def run(
         finally:
             progress.close()
     return _summary(s, state)
+
+
+def _finished_summary(s: _Session) -> dict[str, Any] | None:
+    """The summary of a run whose newest checkpoint is its last log point and whose summary.json
+    was written (nothing to load or compile on --resume), else None."""
+    newest = checkpoint.latest(s.ckpt_dir)
+    try:
+        done = newest is not None and int(checkpoint.read_metadata(newest)["chunk"]) + 1 >= s.alg.num_chunks
+        summary = json.loads((s.out_dir / "summary.json").read_text()) if done else None
+    except (OSError, ValueError, KeyError, TypeError, checkpoint.CheckpointError):
+        return None
+    return summary if isinstance(summary, dict) else None
 
 
 def _written_by(ckpt_dir: Path) -> str:

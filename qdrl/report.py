@@ -63,21 +63,34 @@ class Group:
     runs: dict[str, list[LoadedRun]]
 
 
-def _label(run: LoadedRun) -> str:
-    """A run's label: its sweep's directory name for a seed of a sweep, else its own."""
+def _folder(run: LoadedRun) -> str:
+    """A run's folder name: its sweep's for a seed of a sweep (`seed_<n>/`), else its own."""
     path = run.path.resolve()
     return path.parent.name if re.fullmatch(r"seed_\d+", path.name) else path.name
+
+
+def _labels(runs: Sequence[LoadedRun]) -> dict[Path, str]:
+    """Each run's label: its spec's name (`experiment.name`), with the folder's name added
+    where runs of one spec name lie in several folders (a spec run twice with other --set
+    values)."""
+    names = {run.path: str(run.config["experiment"].get("name") or _folder(run)) for run in runs}
+    folders: dict[str, set[str]] = {}
+    for run in runs:
+        folders.setdefault(names[run.path], set()).add(_folder(run))
+    return {
+        run.path: names[run.path] if len(folders[names[run.path]]) == 1 else f"{names[run.path]} ({_folder(run)})"
+        for run in runs
+    }
 
 
 def collect(paths: Sequence[str | Path]) -> list[Group]:
     """The runs at or under `paths`, grouped by task then label; RunError names a path
     that holds no run, or a set of paths whose runs logged no metrics."""
     groups: dict[str, dict[str, list[LoadedRun]]] = {}
-    for path in find_runs(paths):
-        run = LoadedRun(path)
-        if run.metrics.empty:
-            continue
-        groups.setdefault(run.task_name, {}).setdefault(_label(run), []).append(run)
+    runs = [run for run in map(LoadedRun, find_runs(paths)) if not run.metrics.empty]
+    labels = _labels(runs)
+    for run in runs:
+        groups.setdefault(run.task_name, {}).setdefault(labels[run.path], []).append(run)
     if not groups:
         raise RunError(
             f"{', '.join(str(p) for p in paths)}: the runs there logged no metrics yet; expected "
@@ -201,7 +214,10 @@ def _fmt(x: float, decimals: int) -> str:
 
 
 def _cell(value: Mapping[str, float]) -> str:
-    """`mean ± std (IQM iqm)`, rounded to the std's second significant digit."""
+    """`mean ± std (IQM iqm)`, rounded to the std's second significant digit; one seed's
+    value alone (no spread to show)."""
+    if value["seeds"] == 1:
+        return f"{_fmt(value['mean'], _decimals(0.0, value['mean']) + 1)} (one seed)"
     d = _decimals(value["std"], value["mean"])
     return f"{_fmt(value['mean'], d)} ± {_fmt(value['std'], d)} (IQM {_fmt(value['iqm'], d)})"
 
@@ -227,6 +243,13 @@ def report(
         "(Agarwal et al. 2021).",
         "",
     ]
+    single = sorted({label for g in groups for label, runs in g.runs.items() if len(runs) == 1})
+    if single:
+        md += [
+            f"One seed only: {', '.join(single)}. Bands and ± need two seeds or more (`qdrl run SPEC "
+            "--seeds 0-4`); these curves are drawn without a band.",
+            "",
+        ]
     for group in groups:
         task_dir = out / _slug(group.task)
         figures: list[dict[str, Any]] = []

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from qdrl import checkpoint, compile_cache
+from qdrl import checkpoint, compile_cache, experiment
 from qdrl.cli import main
 from qdrl.config import ConfigError
 from qdrl.experiment import run_spec
@@ -124,6 +124,29 @@ def test_extending_a_finished_run_equals_a_longer_run_from_scratch(
     assert_same_run(out, extended, ref_out, ref)
     assert "num_iterations = 8" in (out / "config.toml").read_text()
     assert json.loads((out / "summary.json").read_text())["iteration"] == 8
+
+
+def test_resuming_a_finished_run_says_so_and_compiles_nothing(
+    tmp_path: Path,
+    full: tuple[Path, Path, dict[str, Any]],
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    spec, ref_out, _ = full
+    out = copy_run(full, tmp_path / "out")
+    before = {p.name: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+
+    def refuse(*args: object) -> None:
+        raise AssertionError("a finished run was initialised or compiled again")
+
+    monkeypatch.setattr(experiment, "initial_state", refuse)
+    monkeypatch.setattr(experiment, "compile_chunk", refuse)
+    again = run_spec(spec, [], out, resume=True)
+    assert again == json.loads((ref_out / "summary.json").read_text())
+    err = capsys.readouterr().err
+    assert f"{out} is a finished run (4 of 4 log points); nothing to run" in err
+    assert "--set qd.num_iterations=" in err
+    assert {p.name: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before  # untouched
 
 
 def test_resume_names_each_differing_key(
@@ -348,10 +371,13 @@ def test_progress_line_counts_iterations_and_shows_the_last_compile_time(
     monkeypatch.setenv("QDRL_CACHE_DIR", str(tmp_path / "cache"))
     spec, out = write_spec(tmp_path), tmp_path / "out"
     run_spec(spec, ["log.progress=true"], out)
-    first = capsys.readouterr().err
-    assert "compiling map_elites on arm ... " in first and "(first run of this spec here: no estimate yet)" in first
-    assert "compiled map_elites on arm in " in first
-    assert "8/8 [" in first  # iterations, not log points
+    first = capsys.readouterr().err  # not a terminal: plain lines, no carriage returns
+    assert "\r" not in first
+    assert "compiling map_elites on arm (first run of this spec here: no estimate yet)\n" in first
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["startup_s"] >= summary["compile_s"] > 0  # the same two figures as the line's
+    assert f"compiled map_elites on arm in {summary['compile_s']:.1f} s (started in " in first
+    assert "map_elites on arm: 8/8 iteration (100%)" in first  # iterations, not log points
     times = json.loads((tmp_path / "cache" / "compile_times.json").read_text())
     (record,) = next(iter(times.values())).values()
     assert record["algorithm"] == "map_elites" and record["task"] == "arm" and record["seconds"] > 0
@@ -360,7 +386,44 @@ def test_progress_line_counts_iterations_and_shows_the_last_compile_time(
     run_spec(spec, ["log.progress=true", "qd.num_iterations=10"], out, overwrite=True)
     second = capsys.readouterr().err
     assert f"(last run of this spec: {record['seconds']:.0f} s)" in second
-    assert "10/10 [" in second
+    assert "map_elites on arm: 10/10 iteration" in second
+
+
+def test_progress_on_a_terminal_is_one_line_and_elsewhere_a_few_plain_lines() -> None:
+    import io
+
+    from qdrl.progress import RunProgress
+
+    tty = io.StringIO()
+    bar = RunProgress(True, "sac on pendulum", "env_steps", 1000, stream=tty, plain=False)
+    bar.compiling(None)
+    bar.compiled(1.5, 2.0)
+    bar.start(0)
+    for done in range(100, 1001, 100):
+        bar.update(done, {"eval_return": "1.0"})
+    bar.close()
+    assert "\r" in tty.getvalue() and "compiled sac on pendulum in 1.5 s (started in 2.0 s)" in tty.getvalue()
+
+    log = io.StringIO()
+    plain = RunProgress(True, "sac on pendulum", "env_steps", 1000, stream=log, plain_every=3600.0)
+    assert plain.plain  # a StringIO is no terminal
+    plain.compiling((12.0, True))
+    plain.tick()  # within plain_every of the last line: nothing
+    plain.compiled(1.5, 2.0)
+    plain.start(0)
+    for done in range(100, 1001, 100):
+        plain.update(done, {"eval_return": "1.0"})
+    plain.close()
+    lines = log.getvalue().splitlines()
+    assert lines[:2] == [
+        "compiling sac on pendulum (last run of this spec: 12 s)",
+        "compiled sac on pendulum in 1.5 s (started in 2.0 s)",
+    ]
+    # the first update, then none within plain_every, then the last
+    assert [line.split(" (")[0] for line in lines[2:]] == [
+        "sac on pendulum: 100/1000 env_steps", "sac on pendulum: 1000/1000 env_steps",
+    ]
+    assert lines[-1].endswith("eval_return=1.0")
 
 
 def test_compile_records_give_a_new_spec_the_last_cold_compile_of_its_algorithm_and_task(

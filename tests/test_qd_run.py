@@ -66,11 +66,14 @@ def test_qd_run_writes_metrics_plots_and_exports(tmp_path: Path, algorithm: str)
     assert rows["qd_score"].is_monotonic_increasing
     table = pd.read_csv(out / "repertoire.csv")
     assert len(table) == summary["num_elites"]
-    assert {"cell", "fitness", "descriptor_0", "descriptor_1"} <= set(table)
+    # columns named from the task's descriptor names (summary.json's descriptor_names)
+    assert list(table)[:4] == ["cell", "fitness", "descriptor_end_effector_x", "descriptor_end_effector_y"]
+    assert summary["descriptor_names"] == ["end-effector x", "end-effector y"]
     npz = np.load(out / "repertoire.npz")
     assert int(np.isfinite(npz["fitnesses"]).sum()) == len(table)
     assert (out / "plots" / "repertoire.png").stat().st_size > 1000
     assert (out / "plots" / "qd_score.png").exists()
+    assert (out / "plots" / "summary.png").stat().st_size > 1000  # the one-figure summary
     assert json.loads((out / "summary.json").read_text())["task"] == "arm"
 
 

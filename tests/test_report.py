@@ -20,13 +20,17 @@ from qdrl.stats import bootstrap_ci, iqm
 
 
 def fake_run(
-    path: Path, algorithm: str, task: str, seed: int, rows: Sequence[dict[str, float]], rl: bool = False
+    path: Path, algorithm: str, task: str, seed: int, rows: Sequence[dict[str, float]], rl: bool = False,
+    name: str | None = None,
 ) -> Path:
-    """A run directory as `qdrl run` leaves it: config.toml, metrics.csv, summary.json."""
+    """A run directory as `qdrl run` leaves it: config.toml, metrics.csv, summary.json. The
+    spec's name (`experiment.name`) is the sweep's folder (seed_<n>/) or the run's own."""
     path.mkdir(parents=True)
     section = f'[env]\nname = "{task}"\n' if rl else f'[task]\nname = "{task}"\n'
+    if name is None:
+        name = path.parent.name if path.name.startswith("seed_") else path.name
     (path / "config.toml").write_text(
-        f'[experiment]\nalgorithm = "{algorithm}"\nseed = {seed}\nname = "{path.parent.name}"\n\n{section}'
+        f'[experiment]\nalgorithm = "{algorithm}"\nseed = {seed}\nname = "{name}"\n\n{section}'
     )
     with (path / "metrics.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -125,6 +129,25 @@ def test_the_command_writes_the_report(runs: Path, tmp_path: Path, capsys: pytes
     assert main(["report", str(runs / "me_arm"), str(runs / "cvt_arm"), "--out", str(tmp_path / "r")]) == 0
     printed = json.loads(capsys.readouterr().out)
     assert list(printed["groups"]) == ["arm"] and Path(printed["csv"]).is_file()
+
+
+def test_the_spec_column_is_the_spec_name_and_one_seed_is_said(tmp_path: Path) -> None:
+    # one spec run into two folders (other --set values), another spec into a folder of any name
+    fake_run(tmp_path / "runs" / "lr_small", "map_elites", "arm", 0, qd_rows(1.0), name="map_elites_arm")
+    fake_run(tmp_path / "runs" / "lr_big", "map_elites", "arm", 0, qd_rows(2.0), name="map_elites_arm")
+    for seed in (0, 1):
+        fake_run(tmp_path / "runs" / "mine" / f"seed_{seed}", "cvt_map_elites", "arm", seed, qd_rows(3.0),
+                 name="cvt_map_elites_arm")
+    result = report([tmp_path / "runs"], tmp_path / "r")
+    assert set(result["groups"]["arm"]["labels"]) == {
+        "map_elites_arm (lr_big)", "map_elites_arm (lr_small)", "cvt_map_elites_arm",
+    }
+    with (tmp_path / "r" / "final.csv").open() as f:
+        assert {row["spec"] for row in csv.DictReader(f)} == set(result["groups"]["arm"]["labels"])
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "One seed only: map_elites_arm (lr_big), map_elites_arm (lr_small). Bands and ± need two seeds" in md
+    assert "| map_elites_arm (lr_big) | 0 | " in md and "(one seed)" in md
+    assert "| cvt_map_elites_arm | 0, 1 | 12 ± 0 (IQM 12)" in md  # two seeds: mean ± std
 
 
 def test_a_sweep_is_not_one_run(runs: Path) -> None:

@@ -30,7 +30,6 @@ from qdrl import plotting
 from qdrl.algorithms.base import (
     Algorithm,
     BuildContext,
-    DescriptorSpace,
     ExperimentConfig,
     Progress,
     QDParts,
@@ -149,6 +148,7 @@ def mo_plot(container: Any, out_dir: Path, task: Task, algorithm: str) -> None:
     plotting.plot_pareto_front(
         {algorithm: global_front(container)}, out_dir / "plots" / "front.png", reference=ref,
         true_front=None if task.true_front is None else task.true_front(), title=title,
+        minimised=task.minimised,
     )
     cells = exact_hypervolumes(container, ref).get("cell_hypervolumes")
     if cells is not None:
@@ -169,7 +169,7 @@ def mo_finish(container: Any, out_dir: Path, task: Task, export_name: str) -> di
     hv = exact_hypervolumes(container, ref)
     hv.pop("cell_hypervolumes", None)
     write_front(front, out_dir / "front.csv")
-    export_solutions(container, out_dir, export_name)
+    export_solutions(container, out_dir, export_name, task.descriptor_names)
     summary: dict[str, Any] = {
         "reference_point": list(ref),
         "global_front_size": len(front),
@@ -271,7 +271,7 @@ def _build_population(sections: Sections, ctx: BuildContext, survival: Survival)
         plot=lambda state, rows, out_dir: mo_plot(jax.device_get(state.repertoire), out_dir, task, ctx.algorithm),
         placement=ctx.placement,
         state_axes=me.state_axes,
-        descriptor_space=DescriptorSpace(task.descriptor_low, task.descriptor_high, task.descriptor_names),
+        # no descriptor space: a population has no cells (its summary names no descriptor bounds)
         qd=QDParts(task, empty, task.scoring),
     )
 

@@ -559,12 +559,18 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
     return row
 
 
-def plot_repertoire(rep: Any, out_dir: Path, task: Task, title: str) -> None:
-    """A QD run's final repertoire drawn into plots/repertoire.png."""
+def plot_repertoire(rep: Any, out_dir: Path, task: Task, title: str, rows: list[Row] | None = None) -> None:
+    """A QD run's final repertoire drawn into plots/repertoire.png; with the run's `rows`, also
+    the one-figure summary plots/summary.png (QD score, coverage, max fitness, repertoire)."""
     plotting.plot_repertoire(
         rep, out_dir / "plots" / "repertoire.png", task.descriptor_low, task.descriptor_high,
         title=title, labels=task.descriptor_names,
     )
+    if rows:
+        plotting.plot_qd_summary(
+            rows, rep, out_dir / "plots" / "summary.png", task.descriptor_low, task.descriptor_high,
+            task.descriptor_names, title,
+        )
 
 
 def reevaluated(
@@ -631,18 +637,17 @@ def _build(
         if container is not None:
             return container.finish(rep, out_dir, task, ctx.algorithm)
         export_npz(rep, out_dir / "repertoire.npz")
-        write_csv(rep, out_dir / "repertoire.csv")
+        write_csv(rep, out_dir / "repertoire.csv", task.descriptor_names)
         extra = source.summary(config) if source.summary is not None else {}
         labels = {"algorithm": ctx.algorithm, "task": task.name}
         return {"qd_offset": task.qd_offset, **reevaluated(qd, qd_parts, rep, out_dir, ctx.seed, labels), **extra}
 
     def plot(state: Any, rows: list[Row], out_dir: Path) -> None:
-        del rows
         rep = jax.device_get(state.repertoire)
         if container is not None:
             container.plot(rep, out_dir, task, ctx.algorithm)
         else:
-            plot_repertoire(rep, out_dir, task, title)
+            plot_repertoire(rep, out_dir, task, title, rows)
 
     resolved = {**sections, **source.tables(config)}
     return Algorithm(

@@ -53,6 +53,10 @@ _WHERE = {
     "draw_walls": "skills",
     "env_walls": "skills",
     "plot_skills": "skills",
+    "Elites": "sources",
+    "elites_of": "sources",
+    "plot_parallel_axes": "summary",
+    "plot_qd_summary": "summary",
 }
 
 if TYPE_CHECKING:
@@ -68,6 +72,8 @@ if TYPE_CHECKING:
     from qdrl.plotting.repertoires import _draw_repertoire as _draw_repertoire
     from qdrl.plotting.repertoires import plot_repertoire, plot_repertoires
     from qdrl.plotting.skills import Wall, draw_walls, env_walls, plot_skills
+    from qdrl.plotting.sources import Elites, elites_of
+    from qdrl.plotting.summary import plot_parallel_axes, plot_qd_summary
 
 
 def __getattr__(name: str) -> Any:
@@ -85,16 +91,20 @@ def __dir__() -> list[str]:
 __all__ = [
     "COUNTER_KEYS",
     "X_KEYS",
+    "Elites",
     "Wall",
     "default_x_keys",
     "default_y_keys",
     "draw_walls",
+    "elites_of",
     "env_walls",
     "plot_cell_fronts",
     "plot_cell_hypervolumes",
     "plot_comparison",
     "plot_curves",
+    "plot_parallel_axes",
     "plot_pareto_front",
+    "plot_qd_summary",
     "plot_repertoire",
     "plot_repertoires",
     "plot_skills",

@@ -15,9 +15,10 @@ from qdrl.plotting.repertoires import _repertoire_panel
 __all__ = ["plot_cell_fronts", "plot_cell_hypervolumes", "plot_pareto_front"]
 
 
-def _staircase(ax: Axes, front: np.ndarray, reference: Sequence[float], **style: Any) -> None:
+def _staircase(ax: Axes, front: np.ndarray, reference: Sequence[float], sign: float = 1.0, **style: Any) -> None:
     """The attainment boundary of a 2-objective front (maximisation) down to the reference; only
-    the points that dominate the reference (the others add no hypervolume) are joined."""
+    the points that dominate the reference (the others add no hypervolume) are joined. Drawn
+    at `sign` times the coordinates (-1: in the minimisation view)."""
     front = front[np.all(front > np.asarray(reference, np.float64)[:2], axis=1)]
     if not len(front):
         return
@@ -31,7 +32,7 @@ def _staircase(ax: Axes, front: np.ndarray, reference: Sequence[float], **style:
             best = float(y)
     xs.append(float(reference[0]))
     ys.append(best)
-    ax.plot(xs, ys, drawstyle="default", **style)
+    ax.plot(sign * np.asarray(xs), sign * np.asarray(ys), drawstyle="default", **style)
 
 
 @overload
@@ -44,6 +45,7 @@ def plot_pareto_front(
     objective_names: Sequence[str] | None = ...,
     *,
     ax: None = None,
+    minimised: bool = ...,
 ) -> Path: ...
 @overload
 def plot_pareto_front(
@@ -55,6 +57,7 @@ def plot_pareto_front(
     objective_names: Sequence[str] | None = ...,
     *,
     ax: Axes,
+    minimised: bool = ...,
 ) -> Axes: ...
 @overload
 def plot_pareto_front(
@@ -66,6 +69,7 @@ def plot_pareto_front(
     objective_names: Sequence[str] | None = ...,
     *,
     ax: None = None,
+    minimised: bool = ...,
 ) -> Axes: ...
 def plot_pareto_front(
     fronts: Mapping[str, np.ndarray],
@@ -76,8 +80,13 @@ def plot_pareto_front(
     objective_names: Sequence[str] | None = None,
     *,
     ax: Axes | None = None,
+    minimised: bool = False,
 ) -> Path | Axes:
     """Draws one or more Pareto fronts (objectives maximised), e.g. of several algorithms.
+
+    The points are fitnesses (every objective maximised). With `minimised`, for tasks whose
+    objectives are minimised and scored negated (ZDT, DTLZ: `Task.minimised`), everything
+    is drawn in the objectives' own view: minus each point, reference and true front.
 
     Args:
       fronts: label -> (k, M) points; M = 2 draws each front with its attainment
@@ -88,6 +97,7 @@ def plot_pareto_front(
       title: the title (the figure's; with `ax`, the panel's).
       objective_names: axis labels (default "objective k").
       ax: an Axes to draw on; a 3-D one (`projection="3d"`) when M >= 3.
+      minimised: draw minus the fitnesses (the minimised objectives), axes "f1 (minimised)".
 
     Returns:
       `ax` when given, else `path` when given, else the Axes of a new figure.
@@ -96,13 +106,15 @@ def plot_pareto_front(
       ValueError: if M >= 3 and `ax` is not 3-D.
     """
     m = max([np.asarray(f).shape[1] for f in fronts.values()] or [2])
-    names = list(objective_names or [f"objective {k}" for k in range(m)])
+    sign = -1.0 if minimised else 1.0
+    default = [f"f{k + 1} (minimised)" if minimised else f"objective {k}" for k in range(m)]
+    names = list(objective_names or default)
     if ax is not None and m >= 3 and getattr(ax, "name", "") != "3d":
         raise ValueError(f"{m} objectives are drawn in 3-D: pass an Axes with projection='3d'")
 
     def draw(panel: Axes) -> None:
         if true_front is not None:
-            t = np.asarray(true_front, np.float64)
+            t = sign * np.asarray(true_front, np.float64)
             if m >= 3:
                 panel.scatter(t[:, 0], t[:, 1], t[:, 2], s=2, c="0.7", label="true front")  # type: ignore[misc]
             else:
@@ -111,14 +123,15 @@ def plot_pareto_front(
         for i, (label, front) in enumerate(fronts.items()):
             f = np.asarray(front, np.float64)
             colour = f"C{i}"
+            shown = sign * f
             if m >= 3:
-                panel.scatter(f[:, 0], f[:, 1], f[:, 2], s=8, c=colour, label=f"{label} ({len(f)})")  # type: ignore[misc]
+                panel.scatter(shown[:, 0], shown[:, 1], shown[:, 2], s=8, c=colour, label=f"{label} ({len(f)})")  # type: ignore[misc]
             else:
-                panel.scatter(f[:, 0], f[:, 1], s=10, c=colour, label=f"{label} ({len(f)})", zorder=3)
+                panel.scatter(shown[:, 0], shown[:, 1], s=10, c=colour, label=f"{label} ({len(f)})", zorder=3)
                 if reference is not None:
-                    _staircase(panel, f, reference, c=colour, lw=0.8)
+                    _staircase(panel, f, reference, sign, c=colour, lw=0.8)
         if reference is not None and m == 2:
-            panel.plot([reference[0]], [reference[1]], "kx", label="reference point")
+            panel.plot([sign * reference[0]], [sign * reference[1]], "kx", label="reference point")
         panel.set_xlabel(names[0])
         panel.set_ylabel(names[1])
         if m >= 3:

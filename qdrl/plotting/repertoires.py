@@ -15,6 +15,7 @@ from matplotlib.figure import Figure, FigureBase
 from scipy.spatial import cKDTree
 
 from qdrl.plotting._common import FigT, _names, _one_panel, _panels
+from qdrl.plotting.sources import elites_of
 
 __all__ = ["plot_repertoire", "plot_repertoires"]
 
@@ -100,8 +101,9 @@ def _draw_repertoire(
     grid_shape = getattr(repertoire, "grid_shape", None)
     centroids = getattr(repertoire, "centroids", None)
     centroids = None if centroids is None else np.asarray(centroids, dtype=np.float64)
-    grid_lo = np.asarray(getattr(repertoire, "low", None) or lo, dtype=np.float64)
-    grid_hi = np.asarray(getattr(repertoire, "high", None) or hi, dtype=np.float64)
+    own_lo, own_hi = getattr(repertoire, "low", None), getattr(repertoire, "high", None)
+    grid_lo = lo if own_lo is None else _repertoire_bounds(own_lo, num_dims, "low")
+    grid_hi = hi if own_hi is None else _repertoire_bounds(own_hi, num_dims, "high")
 
     strip = num_dims == 1
     if strip:
@@ -184,8 +186,8 @@ def _draw_repertoire(
 def _repertoire_panel(
     repertoire: Any,
     path: str | Path | None,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    low: float | Sequence[float] | None,
+    high: float | Sequence[float] | None,
     title: str,
     dims: tuple[int, int],
     cmap: str,
@@ -196,6 +198,7 @@ def _repertoire_panel(
 ) -> Path | Axes:
     """`plot_repertoire`, untyped by overloads, for the functions built on it."""
 
+    repertoire, low, high, labels = elites_of(repertoire, low, high, labels)
     norm, colours = _colour_scale([repertoire], vmin, vmax, cmap)
 
     def draw(panel: Axes) -> None:
@@ -209,8 +212,8 @@ def _repertoire_panel(
 def plot_repertoire(
     repertoire: Any,
     path: str | Path,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    low: float | Sequence[float] | None = ...,
+    high: float | Sequence[float] | None = ...,
     title: str = ...,
     dims: tuple[int, int] = ...,
     cmap: str = ...,
@@ -223,9 +226,9 @@ def plot_repertoire(
 @overload
 def plot_repertoire(
     repertoire: Any,
-    path: str | Path | None,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    path: str | Path | None = ...,
+    low: float | Sequence[float] | None = ...,
+    high: float | Sequence[float] | None = ...,
     title: str = ...,
     dims: tuple[int, int] = ...,
     cmap: str = ...,
@@ -238,9 +241,9 @@ def plot_repertoire(
 @overload
 def plot_repertoire(
     repertoire: Any,
-    path: None,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    path: None = ...,
+    low: float | Sequence[float] | None = ...,
+    high: float | Sequence[float] | None = ...,
     title: str = ...,
     dims: tuple[int, int] = ...,
     cmap: str = ...,
@@ -252,9 +255,9 @@ def plot_repertoire(
 ) -> Axes: ...
 def plot_repertoire(
     repertoire: Any,
-    path: str | Path | None,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    path: str | Path | None = None,
+    low: float | Sequence[float] | None = None,
+    high: float | Sequence[float] | None = None,
     title: str = "",
     dims: tuple[int, int] = (0, 1),
     cmap: str = "viridis",
@@ -275,9 +278,13 @@ def plot_repertoire(
 
     Args:
       repertoire: `fitnesses` (C,) (-inf where empty) and `descriptors` (C, D),
-        e.g. `qdrl.qd.repertoires.CellRepertoire`.
+        e.g. `qdrl.qd.repertoires.CellRepertoire`; or a loaded run (`qdrl.load_run`:
+        its final repertoire, bounds and descriptor names); or a DataFrame of elites
+        (`run.table`, `qdrl.load_repertoires`: `fitness` and `descriptor_*` columns,
+        drawn as points since a table holds no empty cells).
       path: PNG to write (its directory is created), or None.
-      low, high: descriptor bounds for the axes (scalars or D values).
+      low, high: descriptor bounds for the axes (scalars or D values); default the
+        run's, the grid's, else the descriptors' range.
       title: the title (the figure's; with `ax`, the panel's).
       dims: the two descriptor dimensions shown (x, y) when D >= 2.
       cmap: matplotlib colormap name.
@@ -295,8 +302,8 @@ def plot_repertoire(
 def plot_repertoires(
     repertoires: Mapping[str, Any],
     path: str | Path,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    low: float | Sequence[float] | None = ...,
+    high: float | Sequence[float] | None = ...,
     title: str = ...,
     dims: tuple[int, int] = ...,
     cmap: str = ...,
@@ -307,9 +314,9 @@ def plot_repertoires(
 @overload
 def plot_repertoires(
     repertoires: Mapping[str, Any],
-    path: str | Path | None,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    path: str | Path | None = ...,
+    low: float | Sequence[float] | None = ...,
+    high: float | Sequence[float] | None = ...,
     title: str = ...,
     dims: tuple[int, int] = ...,
     cmap: str = ...,
@@ -320,9 +327,9 @@ def plot_repertoires(
 @overload
 def plot_repertoires(
     repertoires: Mapping[str, Any],
-    path: None,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    path: None = ...,
+    low: float | Sequence[float] | None = ...,
+    high: float | Sequence[float] | None = ...,
     title: str = ...,
     dims: tuple[int, int] = ...,
     cmap: str = ...,
@@ -332,9 +339,9 @@ def plot_repertoires(
 ) -> Figure: ...
 def plot_repertoires(
     repertoires: Mapping[str, Any],
-    path: str | Path | None,
-    low: float | Sequence[float],
-    high: float | Sequence[float],
+    path: str | Path | None = None,
+    low: float | Sequence[float] | None = None,
+    high: float | Sequence[float] | None = None,
     title: str = "",
     dims: tuple[int, int] = (0, 1),
     cmap: str = "viridis",
@@ -345,10 +352,11 @@ def plot_repertoires(
     """Draws several repertoires of one task side by side on one colour scale.
 
     Args:
-      repertoires: panel title (e.g. the spec's name) -> repertoire, each drawn as
-        `plot_repertoire` draws one.
+      repertoires: panel title (e.g. the spec's name) -> repertoire, loaded run or
+        DataFrame, each drawn as `plot_repertoire` draws one.
       path: PNG to write (its directory is created), or None.
-      low, high: descriptor bounds for the axes (scalars or D values).
+      low, high: descriptor bounds for the axes (scalars or D values); default the
+        first one's (`plot_repertoire`).
       title: the figure title.
       dims: the two descriptor dimensions shown.
       cmap: matplotlib colormap name.
@@ -364,12 +372,18 @@ def plot_repertoires(
 
     if not repertoires:
         raise ValueError("repertoires is empty; nothing to draw")
+    resolved: dict[str, Any] = {}
+    lo: Any = low
+    hi: Any = high
+    for name, source in repertoires.items():
+        resolved[name], lo, hi, labels = elites_of(source, lo, hi, labels)
+    repertoires = resolved
     norm, colours = _colour_scale(list(repertoires.values()), None, None, cmap)
 
     def draw(figure: FigureBase) -> None:
         axes = figure.subplots(1, len(repertoires), squeeze=False)[0]
         for panel, (name, repertoire) in zip(axes, repertoires.items(), strict=True):
-            _draw_repertoire(panel, repertoire, low, high, dims, norm, colours, labels)
+            _draw_repertoire(panel, repertoire, lo, hi, dims, norm, colours, labels)
             panel.set_title(name, fontsize=10)
         figure.colorbar(ScalarMappable(norm=norm, cmap=colours), ax=list(axes), label="fitness")
 

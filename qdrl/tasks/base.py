@@ -75,6 +75,9 @@ class Task:
     # space, for plots; and its hypervolume from `reference_point` (None where not known).
     true_front: Callable[[], Any] | None = None
     true_hypervolume: float | None = None
+    # Objectives the literature minimises, scored negated (ZDT, DTLZ2): plots draw minus the
+    # fitnesses, in the objectives' own view.
+    minimised: bool = False
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):

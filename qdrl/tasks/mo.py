@@ -145,6 +145,7 @@ def _unit_task(
         true_front=(lambda: true_front(name, points)) if known else None,
         # The true front's hypervolume is known from the default reference point only.
         true_hypervolume=TRUE_HYPERVOLUME.get(name) if known and reference == default_reference else None,
+        minimised=True,
     )
 
 

@@ -28,6 +28,7 @@ from qdrl.qd.repertoires import (
     UnstructuredRepertoire,
     cvt_centroids,
     cvt_repertoire,
+    descriptor_columns,
     export_npz,
     grid_repertoire,
     observe,
@@ -739,6 +740,15 @@ def test_to_table_and_csv_one_row_per_elite(tmp_path: Path):
         "descriptor_2",
     ]
     assert len(pandas.read_csv(write_csv(empty, tmp_path / "empty.csv"))) == 0
+    # Columns named from the task's descriptor names (the summary's), as identifiers.
+    named = pandas.read_csv(write_csv(rep, tmp_path / "named.csv", ("Back foot contact", "front-foot contact")))
+    assert list(named)[2:] == [
+        "descriptor_back_foot_contact", "descriptor_front_foot_contact",
+        "centroid_back_foot_contact", "centroid_front_foot_contact",
+    ]  # fmt: skip
+    np.testing.assert_allclose(named["descriptor_front_foot_contact"].to_numpy(), [0.1, 1.3, 1.9], rtol=1e-6)
+    assert descriptor_columns(("descriptor 0", "descriptor 1"), 2) == ["0", "1"]  # a task's default names
+    assert descriptor_columns(("x", "X"), 2) == ["0", "1"]  # names that collide: indices
 
 
 def test_export_npz_round_trip(tmp_path: Path):

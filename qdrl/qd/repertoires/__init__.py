@@ -7,7 +7,7 @@ contract); empty cells have fitness -inf.
 
 from qdrl.qd.repertoires.cells import CellRepertoire, cvt_repertoire, grid_repertoire
 from qdrl.qd.repertoires.cvt import cvt_centroids
-from qdrl.qd.repertoires.export import export_npz, to_table, write_csv
+from qdrl.qd.repertoires.export import descriptor_columns, export_npz, to_table, write_csv
 from qdrl.qd.repertoires.passive import observe, passive_archive
 from qdrl.qd.repertoires.unstructured import UnstructuredRepertoire, unstructured_repertoire
 
@@ -16,6 +16,7 @@ __all__ = [
     "UnstructuredRepertoire",
     "cvt_centroids",
     "cvt_repertoire",
+    "descriptor_columns",
     "export_npz",
     "grid_repertoire",
     "observe",

@@ -6,18 +6,34 @@ They run on the host (NumPy), between log points, never inside jitted code.
 from __future__ import annotations
 
 import csv
+import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 
-__all__ = ["export_npz", "export_solutions", "to_table", "write_csv", "write_front"]
+__all__ = ["descriptor_columns", "export_npz", "export_solutions", "to_table", "write_csv", "write_front"]
 
 
-def to_table(repertoire: Any) -> dict[str, np.ndarray]:
-    """One row per elite, as columns: `cell`, `fitness`, `descriptor_0..D-1` and, for cell
-    repertoires, `centroid_0..D-1`. Rows are in increasing cell (slot) order."""
+def descriptor_columns(names: Sequence[str], size: int) -> list[str]:
+    """The column suffixes of `size` descriptor dimensions: each name made an identifier
+    ("front foot contact" -> `front_foot_contact`), else (no names, or the default names
+    "descriptor i") the dimension's index. Suffixes that two names share fall back to indices."""
+    suffixes = []
+    for i in range(size):
+        name = names[i] if i < len(names) else ""
+        slug = re.sub(r"[^0-9a-zA-Z]+", "_", name).strip("_").lower()
+        suffixes.append(str(i) if not slug or slug == f"descriptor_{i}" else slug)
+    return suffixes if len(set(suffixes)) == size else [str(i) for i in range(size)]
+
+
+def to_table(repertoire: Any, names: Sequence[str] = ()) -> dict[str, np.ndarray]:
+    """One row per elite, as columns: `cell`, `fitness`, `descriptor_<d>` and, for cell
+    repertoires, `centroid_<d>`, where `<d>` is each dimension's name as an identifier
+    (`descriptor_front_foot_contact`; `descriptor_columns`) or, without `names`, its index
+    (`descriptor_0..D-1`). Rows are in increasing cell (slot) order."""
     fitnesses = np.asarray(repertoire.fitnesses)
     cells = np.flatnonzero(fitnesses > -np.inf)
     table: dict[str, np.ndarray] = {
@@ -25,20 +41,21 @@ def to_table(repertoire: Any) -> dict[str, np.ndarray]:
         "fitness": fitnesses[cells],
     }
     descriptors = np.asarray(repertoire.descriptors)[cells]
-    for i in range(descriptors.shape[1]):
-        table[f"descriptor_{i}"] = descriptors[:, i]
+    suffixes = descriptor_columns(names, descriptors.shape[1])
+    for i, suffix in enumerate(suffixes):
+        table[f"descriptor_{suffix}"] = descriptors[:, i]
     centroids = getattr(repertoire, "centroids", None)
     if centroids is not None:
         centroids = np.asarray(centroids)[cells]
-        for i in range(centroids.shape[1]):
-            table[f"centroid_{i}"] = centroids[:, i]
+        for i, suffix in enumerate(suffixes):
+            table[f"centroid_{suffix}"] = centroids[:, i]
     return table
 
 
-def write_csv(repertoire: Any, path: str | Path) -> Path:
-    """Writes `to_table(repertoire)` as a CSV file with a header row (loads with
+def write_csv(repertoire: Any, path: str | Path, names: Sequence[str] = ()) -> Path:
+    """Writes `to_table(repertoire, names)` as a CSV file with a header row (loads with
     `pandas.read_csv`); floats are written with full precision. Returns the path."""
-    table = to_table(repertoire)
+    table = to_table(repertoire, names)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     columns = list(table.values())
@@ -82,10 +99,11 @@ def write_front(front: np.ndarray, path: Path) -> None:
     np.savetxt(path, front, delimiter=",", header=header, comments="")
 
 
-def export_solutions(container: Any, out_dir: Path, name: str) -> None:
+def export_solutions(container: Any, out_dir: Path, name: str, names: Sequence[str] = ()) -> None:
     """A multi-objective container's solutions (a MOME repertoire's fronts, a Pareto population):
     `<name>.npz` (as `export_npz`: fitnesses, descriptors, genotype leaves named `genotypes` +
-    key path, centroids) and `<name>.csv`, one row per stored solution (cell and slot, or slot)."""
+    key path, centroids) and `<name>.csv`, one row per stored solution (cell and slot, or slot),
+    its descriptor columns named as `to_table`'s."""
     fit = np.asarray(container.fitnesses)
     desc = np.asarray(container.descriptors)
     arrays: dict[str, np.ndarray] = {"fitnesses": fit, "descriptors": desc}
@@ -100,7 +118,8 @@ def export_solutions(container: Any, out_dir: Path, name: str) -> None:
     slots = fit.shape[1] if fit.ndim == 3 else len(fit)
     index = np.arange(len(flat_f))
     cols = [index // slots, index % slots, *flat_f.T, *flat_d.T]
-    names = ["cell", "slot", *(f"objective_{k}" for k in range(m)), *(f"descriptor_{k}" for k in range(d))]
+    header = ["cell", "slot", *(f"objective_{k}" for k in range(m))]
+    header += [f"descriptor_{suffix}" for suffix in descriptor_columns(names, d)]
     table = np.stack(cols, axis=1)[keep]
     fmt = ["%d", "%d", *(["%.9g"] * (m + d))]
-    np.savetxt(out_dir / f"{name}.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)
+    np.savetxt(out_dir / f"{name}.csv", table, delimiter=",", header=",".join(header), comments="", fmt=fmt)
