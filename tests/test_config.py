@@ -172,5 +172,5 @@ def test_check_params_checks_a_builders_keywords_without_calling_it() -> None:
         check_params(_builder, {"size": 0}, "task")
     with pytest.raises(ConfigError, match=r"^task\.scale: expected a finite number, got inf$"):
         check_params(_builder, {"scale": math.inf}, "task")
-    with pytest.raises(ConfigError, match=r"^task\.sise: unknown key for task 'x'; expected one of \['scale', 'size', 'tag'\]$"):
+    with pytest.raises(ConfigError, match=r"^task\.sise: unknown key for task 'x'; did you mean 'size'\?; expected one of \['scale', 'size', 'tag'\]$"):
         check_params(_builder, {"sise": 1}, "task", owner="task 'x'")

@@ -133,12 +133,12 @@ def test_extending_an_rl_run_equals_a_longer_run_from_scratch(tmp_path: Path) ->
     ("override", "message"),
     [
         ("train.batch_size=-4", "train.batch_size: expected a positive integer, got -4"),
-        ("train.batch_sise=4", "train.batch_sise: unknown key"),
+        ("train.batch_sise=4", "train.batch_sise: unknown key; did you mean 'batch_size'?"),
         ("agent.tau=\"fast\"", "agent.tau: expected a number in (0, 1], got 'fast'"),
         ("env.name=\"cheetah\"", "env.name: expected one of ["),
         ("experiment.algorithm=\"ppo\"", "experiment.algorithm: expected one of ["),
         ("agent.hidden=[0]", "agent.hidden"),
-        ("envs.name=\"ant\"", "envs: unknown section"),
+        ("envs.name=\"ant\"", "envs: unknown section for algorithm 'sac'; did you mean 'env'?"),
     ],
 )
 def test_bad_spec_fails_fast_with_the_key(

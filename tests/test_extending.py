@@ -42,7 +42,7 @@ def test_the_row_is_in_the_table_and_its_section_is_checked(gauss_me: dict[str, 
     spec = {"experiment": {"algorithm": "gauss_me"}, "task": {"name": "arm"}, "gauss": {"sigma": -1.0}}
     with pytest.raises(ConfigError, match=r"^gauss\.sigma: expected a number > 0, got -1\.0$"):
         check_spec(spec)
-    with pytest.raises(ConfigError, match=r"^gauss\.sigmaa: unknown key; expected one of \['batch_size', 'sigma'\]$"):
+    with pytest.raises(ConfigError, match=r"^gauss\.sigmaa: unknown key; did you mean 'sigma'\?; expected one of \['batch_size', 'sigma'\]$"):
         check_spec({**spec, "gauss": {"sigmaa": 1.0}})
     with pytest.raises(ConfigError, match=r"^gausss: unknown section for algorithm 'gauss_me'"):
         check_spec({**spec, "gauss": {}, "gausss": {}})
