@@ -64,9 +64,9 @@ def run_map_elites(run_: Any, seed: int) -> tuple[np.ndarray, float]:
         e = task.scoring_fn(genotypes, key)
         return e._replace(fitnesses=e.fitnesses[:, 0])
 
-    cvt_key, init_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)  # as the QD recipe's
-    # The cells of MOME's repertoire, one elite each.
-    cells = make_repertoire(run_.sections["repertoire"], task, task.example_genotype(), cvt_key)
+    _, init_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)  # as the QD recipe's
+    # The cells of MOME's repertoire (k-means seeded by the seed, as the recipe's), one elite each.
+    cells = make_repertoire(run_.sections["repertoire"], task, task.example_genotype(), seed)
     emitter = isoline_emitter(ec.batch_size, ec.iso_sigma, ec.line_sigma)
     me = MapElites(forward_only, emitter, cells)
     state = jax.jit(me.init)(task.init_genotypes(init_key, qd.init_batch_size), run_key)

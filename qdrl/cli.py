@@ -126,7 +126,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
-            result = render.render(runs.load_run(args.dir), args.cell, args.out)
+            result = render.render(runs.load_run(args.dir), args.cell, args.out, args.skill, offline=not args.cdn)
     except runs.RunError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2
@@ -226,12 +226,22 @@ def main(argv: list[str] | None = None) -> int:
     p_bench.set_defaults(fn=_cmd_bench)
 
     p_render = sub.add_parser(
-        "render", help="replay an elite of a run: HTML viewer (brax) or PNG of its path (mazes)"
+        "render",
+        help="replay an elite (QD runs) or a skill (skill-discovery runs): HTML viewer (brax) or PNG of the path (mazes)",
     )
     p_render.add_argument("dir", help="a run directory written by `qdrl run`")
-    p_render.add_argument("--cell", type=int, default=None, help="the elite's cell (default: the best)")
+    p_render.add_argument("--cell", type=int, default=None, help="QD runs: the elite's cell (default: the best)")
     p_render.add_argument(
-        "--out", default=None, help="output file, .html or .png (default: DIR/plots/replay_cell<N>.html|png)"
+        "--skill", type=int, default=None, metavar="Z",
+        help="skill-discovery runs: the skill to replay (default: every skill's path on one PNG, skill 0 in HTML)",
+    )
+    p_render.add_argument(
+        "--out", default=None,
+        help="output file, .html or .png (default: DIR/plots/replay_cell<N>|replay_skill<Z>|replay_skills.html|png)",
+    )
+    p_render.add_argument(
+        "--cdn", action="store_true",
+        help="HTML: brax's viewer page, which loads its scripts from CDNs (default: a self-contained page that works offline)",
     )
     p_render.set_defaults(fn=_cmd_render)
 

@@ -464,6 +464,8 @@ def _loop(
         s.rows.append(row)
         if s.primary:
             _append_row(metrics_path, row)
+            if alg.on_log_point is not None:
+                alg.on_log_point(s.out_dir)
         dashboards.log(row, s.progress_value(row, chunk))
         last = chunk == alg.num_chunks - 1
         saved = (chunk + 1) % s.log.checkpoint_every == 0 or last
@@ -560,9 +562,14 @@ def run(
     with _make_loggers(log if s.primary else _NO_LOGGERS, out_dir, exp, s.config_text) as dashboards, \
             compile_cache.enabled(log.compile_cache), interrupt.Interrupts(stop_message) as stop, \
             interrupt.Worker() as worker:
-        progress.compiling(compile_cache.estimate(key, exp.algorithm, alg.task))
         t0 = time.perf_counter()
         try:
+            if alg.prepare is not None:  # a host computation of its own (a CVT's k-means), timed apart
+                what, compute = alg.prepare
+                progress.preparing(what)
+                worker.call(compute, tick=progress.tick)
+                progress.prepared(time.perf_counter() - t0)
+            progress.compiling(compile_cache.estimate(key, exp.algorithm, alg.task))
             with compile_cache.cache_hits() as cache:
                 state, chunk_fn, meta, restored, skipped = worker.call(
                     lambda: _prepare(s, resume), tick=progress.tick

@@ -44,12 +44,37 @@ class RunProgress:
         self._t0 = time.perf_counter()
         self._note = ""
         self._last_line = -float("inf")  # when the last plain line was written
-        self._phase = ""  # "compiling" or "running" while a line or a bar is live
+        self._phase = ""  # "preparing", "compiling" or "running" while a line or a bar is live
+        self._what = ""  # what the timer line says is under way
 
     def _line(self, text: str) -> None:
         self._stream.write(text + "\n")
         self._stream.flush()
         self._last_line = time.perf_counter()
+
+    def preparing(self, what: str) -> None:
+        """Shows a timer for a host computation before compiling (`what`, e.g. "computing 1024
+        CVT cells (k-means of 50,000 samples)")."""
+        if not self.enabled:
+            return
+        self._t0, self._phase, self._what, self._note = time.perf_counter(), "preparing", what, ""
+        if self.plain:
+            self._line(what)
+            return
+        self._bar = tqdm(total=None, bar_format="{desc}", dynamic_ncols=True, file=self._stream)
+        self.tick()
+
+    def prepared(self, seconds: float) -> None:
+        if not self.enabled:
+            return
+        text = f"{self._what}: {seconds:.1f} s"
+        self._phase = ""
+        if self._bar is not None:
+            self._bar.set_description_str(text, refresh=False)
+            self._bar.close()
+            self._bar = None
+        elif self.plain:
+            self._line(text)
 
     def compiling(self, estimate: tuple[float, bool] | None) -> None:
         """Shows the compile timer; `estimate`: (seconds, measured on this very spec) or None."""
@@ -63,7 +88,7 @@ class RunProgress:
         else:
             self._note = f" (first run of this spec: about {estimate[0]:.0f} s)"
         self._t0 = time.perf_counter()
-        self._phase = "compiling"
+        self._phase, self._what = "compiling", f"compiling {self.label}"
         if self.plain:
             self._line(f"compiling {self.label}{self._note}")
             return
@@ -72,10 +97,12 @@ class RunProgress:
 
     def tick(self) -> None:
         elapsed = time.perf_counter() - self._t0
-        text = f"compiling {self.label} ... {elapsed:.0f} s"
+        text = f"{self._what} ... {elapsed:.0f} s"
         if self._bar is not None:
             self._bar.set_description_str(text + self._note)
-        elif self.plain and self._phase == "compiling" and time.perf_counter() - self._last_line >= self.plain_every:
+        elif self.plain and self._phase in ("preparing", "compiling") and (
+            time.perf_counter() - self._last_line >= self.plain_every
+        ):
             self._line(text)
 
     def compiled(self, compile_s: float, startup_s: float) -> None:

@@ -1,21 +1,28 @@
-"""Replays of a run's elites: an HTML viewer for brax tasks, a PNG of the path in the mazes.
+"""Replays of a run's elites or skills: an HTML viewer for brax tasks, a PNG of the path in the mazes.
 
-`render(run, cell, out)` rolls the elite out through the task's own scoring
-(`LoadedRun.rollout`, the stored return bit for bit) and writes
+`render(run, cell, out)` rolls a QD run's elite out through the task's own scoring
+(`LoadedRun.rollout`, the stored return bit for bit); `render(run, skill=z)` plays
+skill z of a skill-discovery run's agent as the run's last evaluation played it
+(skills.csv's return). Either writes
 
-- for brax tasks, brax's own HTML viewer (`brax.io.html`) of the episode: the
-  robot (and, in ant_maze / ant_trap, the walls) at every step. The page loads
-  brax's viewer script from its CDN, as brax's own pages do;
+- for brax tasks, an HTML replay of the episode: the robot (and, in ant_maze /
+  ant_trap, the walls) at every step. By default one self-contained page that
+  fetches nothing (`qdrl.viewer`), with `offline=False` brax's own viewer
+  (`brax.io.html`), whose page loads its scripts from CDNs;
 - for point_maze, ant_maze and ant_trap, a PNG of the path (point position or
   torso x-y at every step) over the walls, with the start and the goal.
 
 ant_maze and ant_trap write the PNG by default and the HTML replay when `out`
-ends with `.html`.
+ends with `.html`. Without a skill, a skill run's PNG draws every skill's path (one
+colour per skill, a legend of skill ids) and its HTML replay plays skill 0. The
+rollouts compile inside jax's persistent compilation cache (`LoadedRun.compiling`):
+a second render of the run, in a new process, loads its programs from there.
 """
 
 from __future__ import annotations
 
 import types
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -29,16 +36,30 @@ from matplotlib.patches import Rectangle
 from qdrl.envs.brax import WALLED_ENVS, BraxEnv
 from qdrl.envs.point_maze import PointMazeEnv
 from qdrl.plotting import Wall, draw_walls, env_walls
+from qdrl.plotting.skills import skill_colours
 from qdrl.runs import LoadedRun, RunError, Trajectory
 
-__all__ = ["render", "write_html", "write_path_png"]
+__all__ = ["render", "write_html", "write_path_png", "write_paths_png"]
 
+
+
+def _replayed_env(run: LoadedRun) -> Any:
+    """The environment a render replays: a QD run's task's, or a skill-discovery run's agent's."""
+    if run.is_qd:
+        return run.qd_task.env
+    parts = run.run.agent
+    if parts is None or parts.num_skills == 0:
+        raise RunError(
+            f"render: expected a QD run (an elite's replay) or a skill-discovery run (a skill's); this "
+            f"{run.algorithm} run's passive archive stores no genotypes and its agent has no skills"
+        )
+    return parts.env
 
 
 def _kind(run: LoadedRun) -> tuple[str, tuple[str, ...]]:
     """("brax" | "point_maze", the output suffixes this task supports, default first)."""
 
-    env = run.require_qd("render").task.env
+    env = _replayed_env(run)
     if isinstance(env, PointMazeEnv):
         return "point_maze", (".png",)
     if isinstance(env, BraxEnv):
@@ -48,36 +69,64 @@ def _kind(run: LoadedRun) -> tuple[str, tuple[str, ...]]:
     )
 
 
-def render(run: LoadedRun, cell: int | None = None, out: str | Path | None = None) -> dict[str, Any]:
-    """Writes the replay of the elite of `cell` (default: the best) and says what it wrote.
-
-    `out` defaults to `DIR/plots/replay_cell<N>.html` (brax) or `.png` (mazes); its
-    suffix picks the format where a task has two. Returns {"out", "cell",
-    "fitness", "return", "length"}.
-    """
-    kind, suffixes = _kind(run)
-    elite = run.best() if cell is None else run.elite(cell)
-    path = Path(out) if out is not None else run.path / "plots" / f"replay_cell{elite.cell}{suffixes[0]}"
+def _out_path(run: LoadedRun, out: str | Path | None, name: str, suffixes: tuple[str, ...]) -> Path:
+    """`out`, or DIR/plots/<name> with the task's default suffix; RunError for a suffix it cannot write."""
+    path = Path(out) if out is not None else run.path / "plots" / f"{name}{suffixes[0]}"
     if path.suffix not in suffixes:
         raise RunError(
             f"--out: expected a file ending with {' or '.join(suffixes)} for task {run.task_name!r}, "
             f"got {str(path)!r}"
         )
+    return path
+
+
+def render(
+    run: LoadedRun, cell: int | None = None, out: str | Path | None = None, skill: int | None = None,
+    offline: bool = True,
+) -> dict[str, Any]:
+    """Writes the replay of a QD run's elite of `cell` (default: the best), or of a skill-discovery
+    run's `skill`, and says what it wrote.
+
+    `out` defaults to `DIR/plots/replay_cell<N>.html` (brax) or `.png` (mazes), for skills
+    `replay_skill<Z>.html|png`; its suffix picks the format where a task has two.
+    Without `skill`, a skill run's PNG draws every skill's path (`replay_skills.png`)
+    and its HTML replay plays skill 0. Returns {"out", "cell", "fitness", "return",
+    "length"} for an elite, {"out", "skill", "return", "length"} for one skill, and
+    {"out", "skills", "returns", "lengths"} for every skill. RunError for `skill` on a
+    QD run, `cell` on a skill run, or a run that is neither. An HTML replay is the
+    self-contained page (`offline`, the default) or brax's CDN page (`write_html`).
+    """
+    kind, suffixes = _kind(run)
+    with run.compiling():
+        if not run.is_qd:
+            if cell is not None:
+                raise RunError(
+                    f"--cell: expected a QD run's elite; this {run.algorithm} run has skills: "
+                    f"pass --skill Z (0 to {run.num_skills - 1})"
+                )
+            return _render_skills(run, kind, suffixes, skill, out, offline)
+        if skill is not None:
+            raise RunError(
+                f"--skill: expected a skill-discovery run; this {run.algorithm} run is a QD run: "
+                "pass --cell N (default: the best elite)"
+            )
+        return _render_elite(run, kind, suffixes, cell, out, offline)
+
+
+def _render_elite(
+    run: LoadedRun, kind: str, suffixes: tuple[str, ...], cell: int | None, out: str | Path | None,
+    offline: bool = True,
+) -> dict[str, Any]:
+    elite = run.best() if cell is None else run.elite(cell)
+    path = _out_path(run, out, f"replay_cell{elite.cell}", suffixes)
     episode = run.rollout(elite)
     env = run.qd_task.env
     title = f"{run.algorithm} on {run.task_name}, cell {elite.cell}: return {episode.return_:.2f}"
     if path.suffix == ".html":
-        write_html(env.brax_env.sys, episode, path)
-    elif kind == "point_maze":
-        goal = np.asarray(env.goal)
-        write_path_png(
-            episode, path, env_walls(env), (-1.0, -1.0), (1.0, 1.0), goal=(float(goal[0]), float(goal[1])),
-            goal_half_width=float(env.goal_half_width), title=title,
-        )
+        write_html(env.brax_env.sys, episode, path, offline)
     else:
-        write_path_png(
-            episode, path, env_walls(env), run.qd_task.descriptor_low, run.qd_task.descriptor_high,
-            goal=env.brax_env.target, goal_half_width=0.5, title=title,
+        _write_maze_png(
+            {"path": episode}, path, env, kind, run.qd_task.descriptor_low, run.qd_task.descriptor_high, title
         )
     return {
         "out": str(path), "cell": elite.cell, "fitness": elite.fitness, "return": episode.return_,
@@ -85,17 +134,71 @@ def render(run: LoadedRun, cell: int | None = None, out: str | Path | None = Non
     }
 
 
-def write_html(sys: Any, episode: Trajectory, path: Path) -> Path:
-    """brax's HTML viewer of `episode` (its `states`: link poses, (T, ...)) up to its end."""
+def _render_skills(
+    run: LoadedRun, kind: str, suffixes: tuple[str, ...], skill: int | None, out: str | Path | None,
+    offline: bool = True,
+) -> dict[str, Any]:
+    """One skill's replay, or (PNG, no skill) every skill's path on one figure."""
+    every = skill is None and (Path(out).suffix if out is not None else suffixes[0]) == ".png"
+    path = _out_path(run, out, "replay_skills" if every else f"replay_skill{skill or 0}", suffixes)
+    shown = range(run.num_skills) if every else [skill or 0]
+    episodes = {z: run.rollout(skill=z) for z in shown}  # one evaluation plays them all
+    env = run.require_agent("render").env
+    what = f"{run.algorithm} on {run.task_name}"
+    if path.suffix == ".html":
+        write_html(env.brax_env.sys, episodes[skill or 0], path, offline)
+    else:
+        returns = [e.return_ for e in episodes.values()]
+        title = (
+            f"{what}: {len(returns)} skills, returns {min(returns):.2f} to {max(returns):.2f}" if every
+            else f"{what}, skill {skill}: return {returns[0]:.2f}"
+        )
+        space = run.run.descriptor_space
+        low, high = (space.low, space.high) if space is not None else ((-1.0, -1.0), (1.0, 1.0))
+        _write_maze_png({f"skill {z}": e for z, e in episodes.items()}, path, env, kind, low, high, title)
+    if every:
+        return {
+            "out": str(path), "skills": list(episodes),
+            "returns": [e.return_ for e in episodes.values()], "lengths": [e.length for e in episodes.values()],
+        }
+    ((z, episode),) = episodes.items()
+    return {"out": str(path), "skill": z, "return": episode.return_, "length": episode.length}
+
+
+def _write_maze_png(
+    episodes: Mapping[str, Trajectory], path: Path, env: Any, kind: str, low: Any, high: Any, title: str
+) -> Path:
+    """The episodes' paths over a maze's walls and goal: point_maze's [-1, 1]^2, a brax maze's `low`-`high`."""
+    if kind == "point_maze":
+        goal = np.asarray(env.goal)
+        return write_paths_png(
+            episodes, path, env_walls(env), (-1.0, -1.0), (1.0, 1.0), goal=(float(goal[0]), float(goal[1])),
+            goal_half_width=float(env.goal_half_width), title=title,
+        )
+    return write_paths_png(
+        episodes, path, env_walls(env), low, high, goal=env.brax_env.target, goal_half_width=0.5, title=title,
+    )
+
+
+def write_html(sys: Any, episode: Trajectory, path: Path, offline: bool = True) -> Path:
+    """An HTML replay of `episode` (its `states`: link poses, (T, ...)) up to its end.
+
+    `offline` (default): one self-contained page, our own viewer (`qdrl.viewer`),
+    that fetches nothing; else brax's viewer page, whose scripts come from CDNs.
+    """
+    from qdrl import viewer
 
     if episode.states is None:
         raise RunError("render: expected an episode rolled out with brax link poses (record)")
-    # brax's viewer reads only `state.x` (link positions and rotations) of each state.
-    frames = [
-        types.SimpleNamespace(x=jax.tree.map(lambda a, t=t: np.asarray(a[t]), episode.states))
-        for t in range(max(episode.length, 1))
-    ]
+    # Both viewers read only `state.x` (link positions and rotations) of each state.
+    poses = jax.tree.map(lambda a: np.asarray(a)[: max(episode.length, 1)], episode.states)
     path.parent.mkdir(parents=True, exist_ok=True)
+    if offline:
+        path.write_text(viewer.replay_html(sys, poses.pos, poses.rot))
+        return path
+    frames = [
+        types.SimpleNamespace(x=jax.tree.map(lambda a, t=t: a[t], poses)) for t in range(len(poses.pos))
+    ]
     path.write_text(html.render(sys, frames))  # type: ignore[arg-type]
     return path
 
@@ -112,9 +215,28 @@ def write_path_png(
 ) -> Path:
     """A PNG of the episode's x-y path (its state descriptors) over the walls, seen from above."""
 
-    xy = np.asarray(episode.state_descriptors)[: episode.length + 1, :2]
-    lo = np.minimum(np.asarray(low, float)[:2], xy.min(axis=0))
-    hi = np.maximum(np.asarray(high, float)[:2], xy.max(axis=0))
+    return write_paths_png({"path": episode}, path, walls, low, high, goal, goal_half_width, title)
+
+
+def write_paths_png(
+    episodes: Mapping[str, Trajectory],
+    path: Path,
+    walls: list[Wall],
+    low: Any,
+    high: Any,
+    goal: tuple[float, float] | None = None,
+    goal_half_width: float = 0.0,
+    title: str = "",
+) -> Path:
+    """A PNG of the episodes' x-y paths (their state descriptors) over the walls, seen from above:
+    one episode in blue, several in one colour each, named by their keys in the legend."""
+
+    if not episodes:
+        raise ValueError("episodes: expected at least one episode to draw")
+    paths = {name: np.asarray(e.state_descriptors)[: e.length + 1, :2] for name, e in episodes.items()}
+    points = np.concatenate(list(paths.values()))
+    lo = np.minimum(np.asarray(low, float)[:2], points.min(axis=0))
+    hi = np.maximum(np.asarray(high, float)[:2], points.max(axis=0))
     pad = 0.03 * (hi - lo)
     aspect = float(np.clip((hi[1] - lo[1]) / (hi[0] - lo[0]), 0.4, 1.5))
     fig = Figure(figsize=(6.0, 1.0 + 5.0 * aspect), layout="constrained")
@@ -124,15 +246,24 @@ def write_path_png(
     if goal is not None:
         w = goal_half_width
         ax.add_patch(Rectangle((goal[0] - w, goal[1] - w), 2 * w, 2 * w, color="tab:red", alpha=0.6, label="goal"))
-    ax.plot(xy[:, 0], xy[:, 1], color="tab:blue", linewidth=1.5, label="path")
-    ax.plot(*xy[0], "o", color="tab:green", label="start")
-    ax.plot(*xy[-1], "X", color="tab:blue", markersize=9, label="end")
+    if len(paths) == 1:
+        (xy,) = paths.values()
+        ax.plot(xy[:, 0], xy[:, 1], color="tab:blue", linewidth=1.5, label=next(iter(paths)))
+        ax.plot(*xy[0], "o", color="tab:green", label="start")
+        ax.plot(*xy[-1], "X", color="tab:blue", markersize=9, label="end")
+    else:
+        cmap, norm = skill_colours(len(paths))
+        for i, (name, xy) in enumerate(paths.items()):
+            colour = cmap(norm(i))
+            ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=1.5, label=name)
+            ax.plot(*xy[0], "o", color=colour, markersize=4)
+            ax.plot(*xy[-1], "X", color=colour, markersize=8)
     ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
     ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
     ax.set_aspect("equal")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="best", fontsize=8, ncols=1 + (len(paths) - 1) // 12)
     if title:
         ax.set_title(title, fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)

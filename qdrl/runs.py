@@ -1,4 +1,5 @@
-"""Load a run directory written by `qdrl run`: its config, metrics, summary and repertoire.
+"""Load a run directory written by `qdrl run`: its config, metrics, summary and repertoire,
+and the trained agent of RL and skill-discovery runs.
 
     run = qdrl.load_run("runs/map_elites_halfcheetah_uni_cpu")
     run.metrics.tail()                 # metrics.csv as a pandas DataFrame
@@ -6,11 +7,18 @@
     episode = run.rollout(elite)       # its episode, through the task's own scoring
     assert episode.return_ == elite.fitness   # bit for bit
 
+    skills = qdrl.load_run("runs/diayn_point_maze_cpu")
+    act = skills.policy(skill=3)       # obs -> action of skill 3, deterministic, jittable
+    episode = skills.rollout(skill=3)  # skill 3's episode of the run's last evaluation
+
 The run is rebuilt from its resolved `config.toml` (no compilation until a rollout
 or a re-evaluation asks for one). The repertoire comes from `repertoire.npz` (a
 finished run) or from the latest checkpoint (an interrupted run), with genotypes
 in the task's own pytree structure. RL, PBT and skill runs load too; their
-passive archive stores no genotypes, which `Elite.genotype` says when asked.
+passive archive stores no genotypes, which `Elite.genotype` says when asked. SAC,
+TD3 and skill-discovery runs give their agent (`agent()`, `policy()`, `rollout()`)
+from the latest checkpoint. Rollouts compile inside jax's persistent compilation
+cache (`qdrl.compile_cache`), so a later process loads their programs.
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -25,8 +34,8 @@ import jax
 import numpy as np
 import pandas as pd
 
-from qdrl import checkpoint
-from qdrl.algorithms.base import Algorithm, QDParts
+from qdrl import checkpoint, compile_cache
+from qdrl.algorithms.base import AgentParts, Algorithm, QDParts
 from qdrl.config import ConfigError, load_toml
 from qdrl.experiment import build_run
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
@@ -71,16 +80,17 @@ class Elite:
 
 
 class Trajectory(NamedTuple):
-    """One episode of an elite, as the task's scoring function rolled it out."""
+    """One episode of an elite (as the task's scoring function rolled it out) or of an agent's
+    skill (as the run's evaluation played it)."""
 
-    observations: np.ndarray  # (T, obs_size) before each step
+    observations: np.ndarray  # (T, obs_size) before each step (the environment's, no skill code)
     actions: np.ndarray  # (T, action_size)
     rewards: np.ndarray  # (T,)
     state_descriptors: np.ndarray  # (T + 1, D): at the start, then after each step
     mask: np.ndarray  # (T,) 1.0 for the steps inside the episode
     length: int  # steps inside the episode
-    return_: float  # the episode's return: the task's fitness of the elite
-    descriptor: np.ndarray  # (D,) the task's descriptor of the elite
+    return_: float  # the episode's return: the elite's fitness, the evaluation's return
+    descriptor: np.ndarray  # (D,) the task's descriptor of the elite, the episode's archive descriptor
     states: Any  # (T, ...) what `record` kept of each step's env state (brax: link poses)
 
 
@@ -206,7 +216,9 @@ class LoadedRun:
         self.summary: dict[str, Any] | None = json.loads(summary.read_text()) if summary.is_file() else None
         self._run: Any = None
         self._repertoire: Any = None
+        self._state: Any = None  # the latest checkpoint's state
         self._rollouts: dict[Any, Callable[..., Any]] = {}
+        self._evaluations: dict[Any, Any] = {}  # record -> the agent's evaluation (host arrays)
 
     def __repr__(self) -> str:
         state = "finished" if self.finished else "interrupted"
@@ -329,29 +341,38 @@ class LoadedRun:
         )
         return dataclasses.replace(empty, fitnesses=arrays["fitnesses"], descriptors=arrays["descriptors"])
 
+    def _checkpoint_state(self, missing: str) -> Any:
+        """The run's state at its latest checkpoint (restored once); RunError saying `missing`
+        (what the run lacks) when there is none."""
+        if self._state is None:
+            latest = checkpoint.latest(self.path / "checkpoints")
+            if latest is None:
+                raise RunError(f"{self.path} holds no {missing}")
+            # The state's shapes and dtypes; nothing is evaluated or compiled.
+            template = jax.eval_shape(self.run.init, jax.random.PRNGKey(self.seed))
+            try:
+                self._state, _ = checkpoint.restore(latest, template)
+            except ValueError as e:
+                raise RunError(f"{latest}: expected a checkpoint of the run in config.toml; {e}") from e
+        return self._state
+
     def _from_checkpoint(self) -> Any:
-        latest = checkpoint.latest(self.path / "checkpoints")
-        if latest is None:
-            raise RunError(
-                f"{self.path} holds no repertoire yet: expected repertoire.npz (a finished run) or a "
-                "checkpoint in checkpoints/ (an interrupted run)"
-            )
-        # The state's shapes and dtypes; nothing is evaluated or compiled.
-        template = jax.eval_shape(self.run.init, jax.random.PRNGKey(self.seed))
-        try:
-            state, _ = checkpoint.restore(latest, template)
-        except ValueError as e:
-            raise RunError(f"{latest}: expected a checkpoint of the run in config.toml; {e}") from e
+        state = self._checkpoint_state(
+            "repertoire yet: expected repertoire.npz (a finished run) or a checkpoint in "
+            "checkpoints/ (an interrupted run)"
+        )
         for name in ("repertoire", "archive"):
             if hasattr(state, name):
                 return getattr(state, name)
-        raise RunError(f"{latest}: a {self.algorithm} state holds no repertoire or archive")
+        raise RunError(f"{self.path}: a {self.algorithm} state holds no repertoire or archive")
 
     @property
     def table(self) -> pd.DataFrame:
-        """One row per elite: `cell`, `fitness`, `descriptor_*` and `centroid_*` (cell order)."""
+        """One row per elite: `cell`, `fitness`, `descriptor_*` and `centroid_*` (cell order),
+        named as repertoire.csv / archive.csv name them."""
 
-        return pd.DataFrame(to_table(self.repertoire))
+        names = self.run.qd.task.descriptor_names if self.run.qd is not None else ()
+        return pd.DataFrame(to_table(self.repertoire, names))
 
     @property
     def num_cells(self) -> int:
@@ -388,15 +409,53 @@ class LoadedRun:
 
     # -- replaying and re-scoring elites --
 
-    def rollout(self, elite: Elite, record: Callable[[Any], Any] | None = None) -> Trajectory:
-        """The elite's episode, rolled out by the task's own scoring function.
+    def compiling(self) -> AbstractContextManager[str | None]:
+        """The context the run's rollouts compile in: jax's persistent compilation cache, on
+        unless the run's `log.compile_cache` (or `QDRL_COMPILE_CACHE=0`) turns it off."""
+        log = self.config.get("log", {})
+        return compile_cache.enabled(bool(log.get("compile_cache", True)) if isinstance(log, dict) else True)
 
-        Same start state and the same evaluation block width (`eval_batch`) as during
-        the run, so `return_` and `descriptor` equal the stored fitness and
-        descriptor bit for bit. `record` (a function of the batched env state after
-        each step, as in `qdrl.rollout.unroll_recorded`) fills `states`; brax tasks
-        keep the link poses by default (`brax_link_poses`), enough to render.
+    def rollout(
+        self, elite: Elite | None = None, record: Callable[[Any], Any] | None = None, *, skill: int | None = None
+    ) -> Trajectory:
+        """An elite's episode (QD runs), or an episode of the trained agent (`skill` z of a
+        skill-discovery run; the one policy of a SAC or TD3 run, without `skill`).
+
+        An elite is rolled out by the task's own scoring function, with the same start
+        state and evaluation block width (`eval_batch`) as during the run, so `return_`
+        and `descriptor` equal the stored fitness and descriptor bit for bit. An agent's
+        episode is the one the run's evaluation after its latest checkpoint played for
+        that skill: episode z of that evaluation (episode 0 without skills), played
+        with the same keys and batch width, so `return_` is skills.csv's return of
+        episode z at that log point. `record` (a function of the batched env state
+        after each step, as in `qdrl.rollout.unroll_recorded`) fills `states`; brax
+        tasks keep the link poses by default (`brax_link_poses`), enough to render.
         """
+        if elite is not None:
+            if skill is not None:
+                raise RunError("rollout: expected an elite or a skill, not both")
+            return self._rollout_elite(elite, record)
+        if self.is_qd:
+            raise RunError("rollout: expected an elite of this QD run (run.best() or run.elite(cell))")
+        parts = self.require_agent("rollout")
+        episode = self._skill(parts, skill) or 0  # episode z plays skill z
+        if record is None and hasattr(parts.env, "brax_env"):
+            record = brax_link_poses
+        ep, descriptors = self._evaluation(parts, record)
+        tr, mask = ep.transitions, np.asarray(ep.mask)[:, episode]
+        return Trajectory(
+            observations=np.asarray(tr.obs)[:, episode],
+            actions=np.asarray(tr.action)[:, episode],
+            rewards=np.asarray(tr.reward)[:, episode],
+            state_descriptors=np.concatenate([np.asarray(tr.desc)[:1, episode], np.asarray(tr.next_desc)[:, episode]]),
+            mask=mask,
+            length=int(np.asarray(ep.lengths)[episode]),
+            return_=float(np.asarray(ep.returns)[episode]),
+            descriptor=np.asarray(descriptors)[episode],
+            states=jax.tree.map(lambda x: np.asarray(x)[:, episode], ep.recorded),
+        )
+
+    def _rollout_elite(self, elite: Elite, record: Callable[[Any], Any] | None) -> Trajectory:
         qd = self.require_qd("rollout")
         task = qd.task
         if task.env is None or task.policy_scoring is None:
@@ -409,7 +468,8 @@ class LoadedRun:
         if record not in self._rollouts:
             self._rollouts[record] = jax.jit(qd.scoring(fixed_start=True, record=record))
         batch = jax.tree.map(lambda x: np.asarray(x)[None], genotype)
-        ev = jax.device_get(self._rollouts[record](batch, jax.random.PRNGKey(0)))
+        with self.compiling():
+            ev = jax.device_get(self._rollouts[record](batch, jax.random.PRNGKey(0)))
         tr, mask = ev.extras["transitions"], np.asarray(ev.extras["mask"])[:, 0]
         first = jax.tree.map(lambda x: np.asarray(x)[:, 0], ev.extras.get("recorded"))
         return Trajectory(
@@ -423,6 +483,69 @@ class LoadedRun:
             descriptor=np.asarray(ev.descriptors)[0],
             states=first,
         )
+
+    # -- the trained agent (SAC, TD3 and skill-discovery runs) --
+
+    def require_agent(self, what: str) -> AgentParts:
+        """The rebuilt run's agent parts; RunError, saying `what` needed them, for runs without one."""
+        parts = self.run.agent
+        if parts is None:
+            raise RunError(
+                f"{what}: expected a run that trains one agent (SAC, TD3, DIAYN, DADS, SMERL); this "
+                f"{self.algorithm} run has none"
+            )
+        return parts
+
+    @property
+    def num_skills(self) -> int:
+        """The skills the run's agent is conditioned on (0 for SAC and TD3); RunError without an agent."""
+        return self.require_agent("num_skills").num_skills
+
+    def agent(self) -> Any:
+        """The trained agent's state (parameters, optimiser and skill-model states:
+        `qdrl.agents.base.AgentState`) at the run's latest checkpoint; nothing is run or compiled."""
+        parts = self.require_agent("agent")
+        return parts.agent_state(self._checkpoint_state(
+            "checkpoint: expected one in checkpoints/ (written at every log point) to load the agent from"
+        ))
+
+    def policy(self, skill: int | None = None) -> Callable[[Any], Any]:
+        """The trained agent's deterministic policy of `skill` (a skill-discovery run's skill id;
+        none for SAC and TD3): observations (..., obs_size) of the task's environment -> actions
+        (..., action_size), the skill's one-hot appended as in training; jittable."""
+        parts = self.require_agent("policy")
+        act = parts.policy(self.agent(), self._skill(parts, skill))
+        size = parts.env.observation_size
+
+        def policy(obs: Any) -> Any:
+            if np.shape(obs)[-1:] != (size,):
+                raise RunError(f"policy: expected observations (..., {size}), got shape {tuple(np.shape(obs))}")
+            return act(obs)
+
+        return policy
+
+    def _skill(self, parts: AgentParts, skill: Any) -> int | None:
+        """`skill` as an int (None for an agent without skills); RunError for a bad one."""
+        k = parts.num_skills
+        if k == 0:
+            if skill is not None:
+                raise RunError(f"skill: expected none, this {self.algorithm} run's agent has no skills; got {skill!r}")
+            return None
+        if isinstance(skill, bool) or not isinstance(skill, int | np.integer) or not 0 <= skill < k:
+            raise RunError(
+                f"skill: expected an int in [0, {k}) (skills.num_skills of this {self.algorithm} run), got {skill!r}"
+            )
+        return int(skill)
+
+    def _evaluation(self, parts: AgentParts, record: Callable[[Any], Any] | None) -> tuple[Any, Any]:
+        """The episodes of the run's evaluation at its latest checkpoint (host arrays), computed once per `record`."""
+        if record not in self._evaluations:
+            state = self._checkpoint_state(
+                "checkpoint: expected one in checkpoints/ (written at every log point) to load the agent from"
+            )
+            with self.compiling():
+                self._evaluations[record] = jax.device_get(jax.jit(lambda s: parts.evaluation(s, record))(state))
+        return self._evaluations[record]  # type: ignore[no-any-return]
 
     def reevaluate(self, samples: int, seed: int | None = None, write: bool = True) -> dict[str, Any]:
         """Corrected QD metrics from `samples` random-start re-scorings of every elite.

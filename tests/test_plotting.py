@@ -212,12 +212,80 @@ def test_the_skills_plot_draws_the_maze_walls(tmp_path: Path) -> None:
     t = np.linspace(0.0, 1.0, 6)
     traj = np.stack([np.stack([t * 0.5 - 0.9, t * 0.2 - 0.9], -1)] * 2, axis=1)  # (T, 2, 2), away from the walls
     args = (traj, np.array([0, 1]), np.ones((6, 2)))
-    plain = plotting.plot_skills(*args, tmp_path / "plain.png", (-1.0, -1.0), (1.0, 1.0))
-    walled = plotting.plot_skills(*args, tmp_path / "walls.png", (-1.0, -1.0), (1.0, 1.0), walls=walls)
+    # The whole maze in view (the default fits the axes to the paths, far from the walls).
+    plain = plotting.plot_skills(*args, tmp_path / "plain.png", (-1.0, -1.0), (1.0, 1.0), bounds="task")
+    walled = plotting.plot_skills(
+        *args, tmp_path / "walls.png", (-1.0, -1.0), (1.0, 1.0), walls=walls, bounds="task"
+    )
     a, b = imread(plain)[..., :3], imread(walled)[..., :3]
     assert a.shape == b.shape
     dark = (b.max(axis=-1) < 0.35) & (a.min(axis=-1) > 0.9)  # wall pixels: grey where white was
     assert dark.sum() > 500
+
+
+def _paths(num_episodes: int, offset: float = 0.0) -> np.ndarray:
+    """(6, B, 2) straight paths in [-0.6, -0.1] x [-0.5, 0.0]: episode b heads its own way."""
+    t = np.linspace(0.0, 1.0, 6)[:, None]
+    angle = np.linspace(0.0, np.pi / 2, num_episodes)[None]
+    return np.stack([-0.6 + 0.5 * t * np.cos(angle) + offset, -0.5 + 0.5 * t * np.sin(angle)], axis=-1)
+
+
+def test_the_skills_plot_names_the_skills_and_shows_several_evaluations() -> None:
+    from matplotlib.figure import Figure
+    from matplotlib.legend import Legend
+
+    skills = np.arange(8) % 4
+    evaluations = {f"{n} env steps": _paths(8, 0.05 * i) for i, n in enumerate((320, 640, 960))}
+    masks = {k: np.ones((6, 8)) for k in evaluations}
+    fig = plotting.plot_skills(
+        evaluations, skills, masks, None, (-1.0, -1.0), (1.0, 1.0), archive=_grid_rep(np.arange(16.0)), fig=Figure(),
+    )
+    panels, heatmap, heat_bar = fig.axes[:3], fig.axes[3], fig.axes[4]
+    assert len(fig.axes) == 5  # three evaluations, the archive and its colour bar; a legend names the skills
+    assert [a.get_title() for a in panels] == [f"{k}: trajectories" for k in evaluations]
+    assert heatmap.get_title().startswith("passive archive") and heat_bar.get_ylabel() == "fitness (return)"
+    (legend,) = [c for c in panels[-1].get_children() if isinstance(c, Legend)]
+    assert legend.get_title().get_text() == "skill"
+    assert [t.get_text() for t in legend.get_texts()] == ["0", "1", "2", "3"]
+    # Episodes of one skill share its colour, skills differ; the legend's colours are theirs.
+    paths = [line for line in panels[0].lines if line.get_linestyle() == "-"]
+    colours = [tuple(line.get_color()) for line in paths]
+    assert colours[:4] == colours[4:] and len(set(colours[:4])) == 4
+    assert [tuple(h.get_color()) for h in legend.legend_handles] == colours[:4]  # type: ignore[union-attr]
+    # The axes fit the paths of every panel (x from -0.6 to 0.0 over the three, 5% margins), or the task's bounds.
+    x0, x1 = panels[0].get_xlim()
+    assert x0 == pytest.approx(-0.6 - 0.03) and x1 == pytest.approx(0.0 + 0.03)
+    assert panels[2].get_xlim() == panels[0].get_xlim()
+    task = plotting.plot_skills(_paths(8), skills, np.ones((6, 8)), None, (-1.0, -1.0), (1.0, 1.0), bounds="task", fig=Figure())
+    assert task.axes[0].get_xlim() == (-1.0, 1.0) and task.axes[0].get_ylim() == (-1.0, 1.0)
+
+
+def test_many_skills_get_a_colour_bar_of_skill_ids() -> None:
+    from matplotlib.figure import Figure
+
+    fig = plotting.plot_skills(_paths(32), np.arange(32) % 16, np.ones((6, 32)), None, (-1.0, -1.0), (1.0, 1.0), fig=Figure())
+    panel, bar = fig.axes
+    assert panel.get_legend() is None and bar.get_ylabel() == "skill"
+    ticks = [float(t) for t in bar.get_yticks()]
+    assert ticks[0] == 0 and ticks[-1] == 15 and all(t == int(t) for t in ticks)  # skill ids, not fractions
+    assert len({tuple(line.get_color()) for line in panel.lines}) == 16
+
+
+def test_the_skills_plot_refuses_what_it_cannot_draw() -> None:
+    from matplotlib.figure import Figure
+
+    ones = np.ones((6, 2))
+    with pytest.raises(ValueError, match="same evaluations"):
+        plotting.plot_skills({"a": _paths(2)}, np.arange(2), {"b": ones}, None, (-1.0, -1.0), (1.0, 1.0))
+    with pytest.raises(ValueError, match=r"skills \(B,\) expected"):
+        plotting.plot_skills(_paths(2), np.arange(3), ones, None, (-1.0, -1.0), (1.0, 1.0))
+    with pytest.raises(ValueError, match="several evaluations are several panels"):
+        plotting.plot_skills(
+            {"a": _paths(2), "b": _paths(2)}, np.arange(2), {"a": ones, "b": ones}, None, (-1.0, -1.0), (1.0, 1.0),
+            ax=Figure().subplots(),
+        )
+    with pytest.raises(ValueError, match="bounds: expected 'data' or 'task'"):
+        plotting.plot_skills(_paths(2), np.arange(2), ones, None, (-1.0, -1.0), (1.0, 1.0), bounds="box")  # type: ignore[call-overload]
 
 
 # --- drawing into the caller's Axes / Figure (notebooks) ------------------------------

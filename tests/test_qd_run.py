@@ -53,9 +53,18 @@ def write_spec(tmp_path: Path, algorithm: str = "map_elites", iterations: int = 
 
 
 @pytest.mark.parametrize("algorithm", ["map_elites", "cvt_map_elites"])
-def test_qd_run_writes_metrics_plots_and_exports(tmp_path: Path, algorithm: str) -> None:
+def test_qd_run_writes_metrics_plots_and_exports(
+    tmp_path: Path, algorithm: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "out"
-    summary = run_spec(write_spec(tmp_path, algorithm), ["log.plots=true"], out)
+    summary = run_spec(write_spec(tmp_path, algorithm), ["log.plots=true", "log.progress=true"], out)
+    lines = capsys.readouterr().err.splitlines()
+    kmeans = [i for i, line in enumerate(lines) if "CVT cells (k-means of" in line]
+    compiling = next(i for i, line in enumerate(lines) if line.startswith(f"compiling {algorithm} on arm"))
+    if algorithm == "cvt_map_elites":  # the cells' k-means has a line of its own, before compiling
+        assert len(kmeans) == 2 and kmeans[1] < compiling and " s" in lines[kmeans[1]]
+    else:
+        assert kmeans == []
     for key in ("qd_score", "coverage", "max_fitness", "evaluations", "wall_s", "compile_s"):
         assert key in summary, key
     assert summary["evaluations"] == 32 + 40 * 32
@@ -123,3 +132,22 @@ def test_bad_qd_spec_fails_fast(
         assert main(["run", str(write_spec(tmp_path)), "--set", override, "--out", str(tmp_path / "o")]) == 2
     assert message in capsys.readouterr().err
     assert compiled.count == 0  # refused before anything compiled
+
+
+def test_cvt_cells_follow_the_seed_unless_a_cvt_seed_shares_them() -> None:
+    import dataclasses
+
+    from qdrl.algorithms.qd import RepertoireConfig, cvt_cells, make_repertoire
+    from qdrl.tasks import make_task
+
+    task = make_task("arm", num_dofs=4)
+    example = task.example_genotype()
+    own = RepertoireConfig(kind="cvt", num_centroids=16, cvt_samples=200, kmeans_iters=5)
+    a, b = (np.asarray(make_repertoire(own, task, example, seed).centroids) for seed in (0, 1))
+    assert a.shape == (16, 2) and not np.array_equal(a, b)  # each seed its own cells, as in QDax
+    shared = dataclasses.replace(own, cvt_seed=7)
+    misses = cvt_cells.cache_info().misses
+    c, d = (np.asarray(make_repertoire(shared, task, example, seed).centroids) for seed in (0, 1))
+    np.testing.assert_array_equal(c, d)
+    assert cvt_cells.cache_info().misses == misses + 1  # k-means ran once for both seeds
+    np.testing.assert_array_equal(c, np.asarray(make_repertoire(own, task, example, 7).centroids))

@@ -63,6 +63,7 @@ def test_tiny_run_fills_the_passive_archive(tmp_path: Path, algorithm: str) -> N
     if algorithm.startswith("smerl"):
         assert 0.0 <= summary["gate_open"] <= 1.0
     assert (tmp_path / "plots" / "skills.png").stat().st_size > 0
+    assert len((tmp_path / "skills.csv").read_text().splitlines()) == 1 + 2 * 8  # 2 log points x 8 episodes
     assert (tmp_path / "plots" / "archive.png").exists()
     written = json.loads((tmp_path / "summary.json").read_text())
     assert written["algorithm"] == algorithm
@@ -150,10 +151,12 @@ def test_smerl_run_resumed_after_its_first_checkpoint_matches_an_uninterrupted_r
     (out / "summary.json").unlink()
     rows = (out / "metrics.csv").read_text().splitlines()
     (out / "metrics.csv").write_text("\n".join(rows[:2]) + "\n")
+    episodes = (out / "skills.csv").read_text().splitlines()  # written at each log point
+    (out / "skills.csv").write_text("\n".join(episodes[: 1 + 8]) + "\n")
     assert checkpoint.step_of(checkpoint.latest(out / "checkpoints")) == 1  # type: ignore[arg-type]
 
     resumed = run(spec, out, resume=True)
-    timing = {"wall_s", "compile_s", "run_s", "env_steps_per_s"}
+    timing = {"wall_s", "compile_s", "startup_s", "run_s", "env_steps_per_s"}
     keys = sorted(k for k, v in full.items() if isinstance(v, int | float) and k not in timing)
     assert {"eval_return", "coverage", "gate_open", "discriminator_loss", "train_return"} <= set(keys)
     for key in keys:
@@ -167,3 +170,8 @@ def test_smerl_run_resumed_after_its_first_checkpoint_matches_an_uninterrupted_r
         for name in a.files:
             np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     assert len((out / "metrics.csv").read_text().splitlines()) == 1 + 2
+    # skills.csv, as the stopped run left it (its first log point's 8 episodes): the resumed
+    # session appends its own, as metrics.csv's, bit for bit the uninterrupted run's.
+    skills = (out / "skills.csv").read_text()
+    assert skills == (tmp_path / "full" / "skills.csv").read_text()
+    assert len(skills.splitlines()) == 1 + 2 * 8

@@ -12,7 +12,7 @@ return (`qdrl.off_policy.EPISODE_RETURNS`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Literal, NamedTuple
 
 import jax
@@ -27,10 +27,18 @@ from qdrl.agents.sac import SACConfig, make_sac
 from qdrl.agents.smerl import SMERLConfig, smerl_gate
 from qdrl.envs.base import Env
 from qdrl.envs.skills import SkillEnv, append_skill
-from qdrl.rollout import run_episodes
+from qdrl.rollout import Episodes, RecordFn, run_episodes
 from qdrl.types import Array, PRNGKey
 
-__all__ = ["SkillDiscovery", "evaluate_skills", "make_skill_discovery", "skill_module"]
+__all__ = [
+    "SkillDiscovery",
+    "episode_descriptors",
+    "evaluate_skills",
+    "make_skill_discovery",
+    "skill_episodes",
+    "skill_module",
+    "skill_policy",
+]
 
 
 class SkillDiscovery(NamedTuple):
@@ -65,6 +73,52 @@ def make_skill_discovery(
     return SkillDiscovery(skill_env, with_skill_model(agent, module, skills, gate), module, storage)
 
 
+def skill_policy(sd: SkillDiscovery, agent_state: AgentState, skill: int) -> Callable[[Array], Array]:
+    """The deterministic policy of skill `skill`: observations (..., obs_size) of the environment
+    without skill -> actions (..., action_size), the skill's one-hot appended as in training;
+    jittable."""
+    k = sd.env.num_skills
+    if isinstance(skill, bool) or not isinstance(skill, int) or not 0 <= skill < k:
+        raise ValueError(f"skill: expected an int in [0, {k}), got {skill!r}")
+    params = sd.agent.policy_params(agent_state)
+
+    def policy(obs: Array) -> Array:
+        obs = jnp.asarray(obs, jnp.float32)
+        return sd.agent.policy(params, append_skill(obs, jnp.full(obs.shape[:-1], skill, jnp.int32), k))
+
+    return policy
+
+
+def skill_episodes(
+    sd: SkillDiscovery, agent_state: AgentState, key: PRNGKey, num_episodes: int, record: RecordFn | None = None
+) -> Episodes:
+    """The episodes `evaluate_skills` plays from its `key`'s first half: episode i plays skill
+    i % K deterministically on the environment without skill (`sd.env.env`), from the random
+    start the key gives it; `record` as in `run_episodes`. Jittable."""
+    k, env = sd.env.num_skills, sd.env.env
+    params = sd.agent.policy_params(agent_state)
+    skills = jnp.arange(num_episodes, dtype=jnp.int32) % k
+
+    def policy(obs: Array, _: PRNGKey) -> Array:
+        return sd.agent.policy(params, append_skill(obs, skills, k))
+
+    return run_episodes(env, policy, key, num_episodes, record=record)
+
+
+def episode_descriptors(
+    ep: Episodes,
+    descriptor: Literal["final", "mean"] = "final",
+    low: Sequence[float] | None = None,
+    high: Sequence[float] | None = None,
+) -> Array:
+    """Each episode's descriptor (B, D): its final or mean state descriptor, clipped to
+    [low, high] when they are given."""
+    desc = ep.final_desc if descriptor == "final" else ep.mean_desc
+    if low is not None and high is not None:
+        desc = jnp.clip(desc, jnp.asarray(low), jnp.asarray(high))
+    return desc
+
+
 def evaluate_skills(
     sd: SkillDiscovery,
     agent_state: AgentState,
@@ -75,26 +129,20 @@ def evaluate_skills(
     high: Sequence[float] | None = None,
 ) -> dict[str, Array]:
     """Every skill played deterministically: episode i plays skill i % K on the environment
-    without skill (`sd.env.env`); jittable.
+    without skill (`sd.env.env`; `skill_episodes` on the first half of `key`); jittable.
 
     Returns the episodes' mean, std and min return and mean length (`eval_*`), the
     skill model's metrics on the evaluation steps as the training batches see them
     (`eval_<name>` over every step, `eval_final_<name>` at the episodes' last step),
-    each episode's `returns` and descriptor (`descriptors`: "final" or "mean", clipped
-    to [low, high] when given), and the `trajectories` of state descriptors and `mask`.
+    each episode's `returns`, `lengths` and descriptor (`descriptors`: "final" or
+    "mean", clipped to [low, high] when given), and the `trajectories` of state
+    descriptors and `mask`.
     """
-    k, env = sd.env.num_skills, sd.env.env
-    params = sd.agent.policy_params(agent_state)
+    k = sd.env.num_skills
     skills = jnp.arange(num_episodes, dtype=jnp.int32) % k
     run_key, model_key = jax.random.split(key)
-
-    def policy(obs: Array, _: PRNGKey) -> Array:
-        return sd.agent.policy(params, append_skill(obs, skills, k))
-
-    ep = run_episodes(env, policy, run_key, num_episodes)
-    desc = ep.final_desc if descriptor == "final" else ep.mean_desc
-    if low is not None and high is not None:
-        desc = jnp.clip(desc, jnp.asarray(low), jnp.asarray(high))
+    ep = skill_episodes(sd, agent_state, run_key, num_episodes)
+    desc = episode_descriptors(ep, descriptor, low, high)
     tr = ep.transitions
     steps = tr.obs.shape[0]
     per_step = jnp.broadcast_to(skills, (steps, num_episodes))
@@ -109,6 +157,7 @@ def evaluate_skills(
         "eval_return_min": jnp.min(ep.returns),
         "eval_length": jnp.mean(ep.lengths.astype(jnp.float32)),
         "returns": ep.returns,
+        "lengths": ep.lengths,
         "descriptors": desc,
         "trajectories": tr.next_desc,
         "mask": mask,

@@ -7,7 +7,7 @@ tasks, environments, networks; nothing compiled). An `Algorithm` is data: an `in
 (key -> state pytree) and a `chunk` (state -> state, metrics) that the driver alone
 jits, places on the devices and times, a host-side `log_row` and `finish`, and the
 facts the driver and `qdrl.load_run` read (progress, descriptor space, the task of a
-QD run). Nothing here compiles or runs anything.
+QD run, the agent of an RL or skill run). Nothing here compiles or runs anything.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from qdrl.config import NonNegativeInt, PositiveInt, Range, check_fields
 from qdrl.placement import Placement, make_placement, resolve_devices
 
 __all__ = [
+    "AgentParts",
     "Algorithm",
     "BuildContext",
     "DescriptorSpace",
@@ -132,6 +133,27 @@ class QDParts(NamedTuple):
     scoring: Callable[..., Any]
 
 
+class AgentParts(NamedTuple):
+    """What the trained agent of an RL or skill-discovery run needs to be loaded, acted with and
+    replayed (`qdrl.load_run`): pure functions, nothing compiled.
+
+    `evaluation(state, record)` plays exactly the episodes the run's own evaluation
+    plays after reaching `state` (same environment, keys and batch width; jittable,
+    `record` as in `qdrl.rollout.run_episodes`) and returns them (`qdrl.rollout.Episodes`)
+    with each episode's passive-archive descriptor (B, D). Episode i plays skill
+    i % `num_skills`; a run without skills (`num_skills` 0) plays its one policy in every
+    episode.
+    """
+
+    env: Any  # the environment the evaluations play (`qdrl.envs.base.Env`, no skill in its observation)
+    num_skills: int  # skills the policy is conditioned on; 0: an agent without a skill input
+    agent_state: Callable[[Any], Any]  # the run's state -> the agent's (`qdrl.agents.base.AgentState`)
+    # (agent state, skill: an int in [0, num_skills), or None without skills) -> the
+    # deterministic policy: observations (..., obs_size) -> actions (..., action_size); jittable.
+    policy: Callable[[Any, int | None], Callable[[Any], Any]]
+    evaluation: Callable[[Any, Callable[[Any], Any] | None], tuple[Any, Any]]
+
+
 class Algorithm(NamedTuple):
     """A built algorithm: pure functions over one state pytree, and what the driver reads.
 
@@ -160,6 +182,13 @@ class Algorithm(NamedTuple):
     run_context: Callable[[], AbstractContextManager[Any]] | None = None
     descriptor_space: DescriptorSpace | None = None
     qd: QDParts | None = None  # QD runs: their task and repertoire
+    agent: AgentParts | None = None  # RL and skill-discovery runs: their one trained agent
+    # Called with the run directory after each log point's row is written (process 0 only):
+    # per-log-point outputs of the algorithm's own (skills.csv), on disk as metrics.csv is.
+    on_log_point: Callable[[Path], None] | None = None
+    # (what it computes, the host computation): run once before anything compiles, with a
+    # progress line of its own (a CVT's cells: k-means); the driver times it apart.
+    prepare: tuple[str, Callable[[], Any]] | None = None
 
 
 Parser = Callable[[Mapping[str, Any], ExperimentConfig], Sections]

@@ -114,6 +114,9 @@ class RepertoireConfig:
     num_centroids: PositiveInt = 1024  # cvt: number of cells
     cvt_samples: PositiveInt = 50_000  # cvt: uniform samples clustered by k-means into centroids
     kmeans_iters: PositiveInt = 50  # cvt: at most this many Lloyd iterations (after k-means++ seeding)
+    # cvt: the k-means seed; default the experiment's, so each seed of a sweep has cells of its own
+    # (as in QDax). Give one to share the cells across a sweep's seeds: computed once per process.
+    cvt_seed: NonNegativeInt | None = None
     # CMA-MAE's archive learning rate alpha (Fontaine & Nikolaidis 2023): thresholds apart
     # from the elites move towards accepted fitnesses; 1 with threshold_min = -inf: plain MAP-Elites.
     learning_rate: UnitFloat = 1.0
@@ -518,18 +521,31 @@ def check_repertoire(repertoire: RepertoireConfig, task: Task) -> None:
         )
 
 
-def make_repertoire(config: RepertoireConfig, task: Task, example: Any, key: jax.Array | None, centroids: Any = None) -> Any:
+@functools.lru_cache(maxsize=8)
+def cvt_cells(
+    seed: int, num_centroids: int, samples: int, low: tuple[float, ...], high: tuple[float, ...], iters: int
+) -> np.ndarray:
+    """The CVT cells (k-means centroids, host array) of a run of seed `seed`: the first of three
+    keys split from the seed's, as the cells of every CVT run since qdrl 0.1. Kept for the
+    process, so the seeds of a sweep that share `repertoire.cvt_seed` compute them once."""
+    key = jax.random.split(jax.random.PRNGKey(seed), 3)[0]
+    return np.asarray(cvt_centroids(key, num_centroids, samples, low, high, num_iters=iters))
+
+
+def make_repertoire(config: RepertoireConfig, task: Task, example: Any, seed: int | None, centroids: Any = None) -> Any:
     """The empty repertoire of `[repertoire]` for `task`'s descriptors and genotypes `example`; a
-    CVT's cells are `centroids`, or come from k-means seeded by `key`."""
+    CVT's cells are `centroids`, or come from k-means seeded by `repertoire.cvt_seed`, else by the
+    run's `seed` (`cvt_cells`)."""
     if config.kind == "grid":
         rep = grid_repertoire(example, config.grid_shape, task.descriptor_low, task.descriptor_high)
     else:
         if centroids is None:
-            if key is None:
-                raise ValueError("make_repertoire: a CVT repertoire needs a key or centroids")
-            centroids = cvt_centroids(
-                key, config.num_centroids, config.cvt_samples, task.descriptor_low, task.descriptor_high,
-                num_iters=config.kmeans_iters,
+            seed = config.cvt_seed if config.cvt_seed is not None else seed
+            if seed is None:
+                raise ValueError("make_repertoire: a CVT repertoire needs a seed or centroids")
+            centroids = cvt_cells(
+                seed, config.num_centroids, config.cvt_samples, tuple(map(float, task.descriptor_low)),
+                tuple(map(float, task.descriptor_high)), config.kmeans_iters,
             )
         rep = cvt_repertoire(example, centroids, task.descriptor_low, task.descriptor_high)
     return rep.with_learning_rate(config.learning_rate, config.threshold_min) if config.annealed else rep
@@ -598,11 +614,10 @@ def _build(
     check_repertoire(rep_cfg, task)
     config = source.resolve(source.config_of(sections), task)
     parts = source.build(config, task, ctx)
-    cvt_key = jax.random.split(jax.random.PRNGKey(ctx.seed), 3)[0]
     lapack = single_threaded_lapack if source.uses_cma_es(config) else None
 
-    def empty(key: jax.Array | None, centroids: Any) -> Any:
-        cells = make_repertoire(rep_cfg, task, parts.example_genotype, key, centroids)
+    def empty(seed: int | None, centroids: Any) -> Any:
+        cells = make_repertoire(rep_cfg, task, parts.example_genotype, seed, centroids)
         return cells if container is None else container.wrap(cells, sections, task, parts.example_genotype)
 
     @functools.cache
@@ -610,7 +625,7 @@ def _build(
         """The loop, on the repertoire's cells; a CVT's are computed (k-means, on the host) when
         the state is first made or traced, not when the run is built (`--check`, `load_run`)."""
         with jax.ensure_compile_time_eval(), (lapack or contextlib.nullcontext)():
-            repertoire = empty(cvt_key, ctx.centroids)
+            repertoire = empty(ctx.seed, ctx.centroids)
         options = {} if container is None else {"metrics_fn": container.metrics(task)}
         return MapElites(
             parts.scoring_fn, parts.emitter, repertoire, qd_offset=task.qd_offset, placement=ctx.placement,
@@ -649,6 +664,10 @@ def _build(
         else:
             plot_repertoire(rep, out_dir, task, title, rows)
 
+    cells = None
+    if rep_cfg.kind == "cvt" and ctx.centroids is None:
+        what = f"computing {rep_cfg.num_centroids:,} CVT cells (k-means of {rep_cfg.cvt_samples:,} samples)"
+        cells = (what, map_elites)
     resolved = {**sections, **source.tables(config)}
     return Algorithm(
         task=task.name,
@@ -663,6 +682,7 @@ def _build(
         finish=finish,
         plot=plot,
         placement=ctx.placement,
+        prepare=cells,
         state_axes=qd_state_axes(parts.emitter),
         run_context=lapack,
         descriptor_space=DescriptorSpace(task.descriptor_low, task.descriptor_high, task.descriptor_names),

@@ -1,5 +1,6 @@
 """Off-policy RL recipes (SAC, TD3): trainer chunks, each followed by a deterministic evaluation
-whose episodes feed a passive archive.
+whose episodes feed a passive archive. A loaded run acts with and replays its trained agent
+(`Algorithm.agent`, `qdrl.load_run`).
 
 Sections: `[env]`, `[agent]` (the agent's config), `[train]` (`qdrl.off_policy.TrainConfig`),
 `[archive]` (the passive archive that measures the run with QD metrics).
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, NamedTuple
 
@@ -19,6 +20,7 @@ import numpy as np
 from qdrl import plotting
 from qdrl.agents import AGENTS
 from qdrl.algorithms.base import (
+    AgentParts,
     Algorithm,
     BuildContext,
     DescriptorSpace,
@@ -36,6 +38,8 @@ from qdrl.off_policy import STATE_AXES, TrainConfig, TrainState, make_trainer
 from qdrl.placement import check_divisible
 from qdrl.qd.repertoires import CellRepertoire, export_npz, passive_archive, write_csv
 from qdrl.qd.repertoires.passive import feed
+from qdrl.rollout import Episodes, run_episodes
+from qdrl.types import Array
 
 __all__ = ["SAC", "TD3", "ArchiveConfig", "EnvConfig", "RLState", "archive_labels", "plot_archive", "write_archive"]
 
@@ -202,6 +206,18 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         counters = {"env_steps": int(state.train.env_steps), "grad_steps": int(state.train.grad_steps)}
         return rl_log_row(counters, metrics)
 
+    def policy(agent_state: Any, skill: int | None) -> Callable[[Array], Array]:
+        del skill  # one policy, no skill input
+        params = agent.policy_params(agent_state)
+        return lambda obs: agent.policy(params, obs)
+
+    def evaluation(state: RLState, record: Any) -> tuple[Episodes, Array]:
+        """The episodes of `trainer.evaluate` after `state`'s env steps (its key and width)."""
+        act = policy(state.train.agent, None)
+        key = jax.random.fold_in(key0, state.train.env_steps)
+        ep = run_episodes(env, lambda obs, _: act(obs), key, train_cfg.num_eval_envs, record=record)
+        return ep, ep.final_desc if archive_cfg.descriptor == "final" else ep.mean_desc
+
     def finish(state: RLState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
         del rows
         write_archive(state.archive, out_dir)
@@ -220,6 +236,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         placement=ctx.placement,
         state_axes=RLState(STATE_AXES, None),  # type: ignore[arg-type]
         descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),
+        agent=AgentParts(env, 0, lambda state: state.train.agent, policy, evaluation),
     )
 
 

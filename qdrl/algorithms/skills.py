@@ -9,6 +9,12 @@ and logs the same QD metrics as every other algorithm, plus the skill model's
 metrics on the evaluation episodes (discriminator accuracy for DIAYN,
 skill-dynamics log-likelihood for DADS), at every step and at the episodes' last step.
 
+Besides the driver's outputs a run writes `skills.csv` (every evaluated episode of every
+log point: its skill, return, length, descriptor and archive cell; `SkillLog`) and
+`plots/skills.png` (the skills' paths at the first, middle and last log points beside
+the archive). A loaded run acts with and replays any skill of its trained agent
+(`Algorithm.agent`, `qdrl.load_run`).
+
 Sections: `[env]` (a task of `SKILL_TASKS`), `[agent]` (SAC), `[train]`, `[skills]`
 (the DIAYN or DADS config), `[smerl]` (SMERL's target and margin), `[archive]`
 (defaults: the task's descriptor bounds and QD offset).
@@ -16,10 +22,11 @@ Sections: `[env]` (a task of `SKILL_TASKS`), `[agent]` (SAC), `[train]`, `[skill
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import functools
 import inspect
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -31,9 +38,16 @@ from qdrl.agents.base import AgentState
 from qdrl.agents.dads import DADSConfig
 from qdrl.agents.diayn import DIAYNConfig
 from qdrl.agents.sac import SACConfig
-from qdrl.agents.skill_discovery import evaluate_skills, make_skill_discovery
+from qdrl.agents.skill_discovery import (
+    episode_descriptors,
+    evaluate_skills,
+    make_skill_discovery,
+    skill_episodes,
+    skill_policy,
+)
 from qdrl.agents.smerl import SMERLConfig
 from qdrl.algorithms.base import (
+    AgentParts,
     Algorithm,
     BuildContext,
     DescriptorSpace,
@@ -56,11 +70,24 @@ from qdrl.config import ConfigError, OneOf, PositiveInt, build, check_keys, chec
 from qdrl.envs.base import Env
 from qdrl.envs.brax import Backend
 from qdrl.off_policy import STATE_AXES, TrainConfig, make_trainer
+from qdrl.qd.repertoires import descriptor_columns
 from qdrl.qd.repertoires.passive import feed
+from qdrl.rollout import Episodes
 from qdrl.tasks import TASKS, Task
 from qdrl.types import Array, PRNGKey
 
-__all__ = ["DADS", "DIAYN", "SKILL_TASKS", "SMERL_DADS", "SMERL_DIAYN", "SkillEnvConfig", "skill_task"]
+__all__ = [
+    "DADS",
+    "DIAYN",
+    "SKILLS_CSV",
+    "SKILL_TASKS",
+    "SMERL_DADS",
+    "SMERL_DIAYN",
+    "SkillEnvConfig",
+    "SkillLog",
+    "skill_columns",
+    "skill_task",
+]
 
 # The QD tasks (`qdrl.tasks`) a skill-discovery run can use: their environment,
 # reward, episode descriptor, bounds and QD offset measure skills and QD algorithms
@@ -69,6 +96,7 @@ SKILL_TASKS: tuple[str, ...] = ("point_maze", "ant_omni", "ant_trap", "ant_maze"
 SkillTaskName = Annotated[str, OneOf(lambda: SKILL_TASKS)]
 # The skill model's metric on the progress bar: its value at the evaluation episodes' last step.
 _MODEL_METRIC = {DIAYNConfig: "discriminator_accuracy", DADSConfig: "dynamics_log_likelihood"}
+SKILLS_CSV = "skills.csv"  # every evaluated episode of a run (`SkillLog`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +114,68 @@ def skill_task(name: str, episode_length: int, backend: str) -> Task:
     params = {"episode_length": episode_length, "backend": backend}
     accepted = inspect.signature(builder).parameters
     return builder(**{k: v for k, v in params.items() if k in accepted})
+
+
+def skill_columns(names: Sequence[str]) -> list[str]:
+    """skills.csv's descriptor columns, named as repertoire.csv's: `descriptor_<name>`, each name
+    made an identifier ("final x" -> `descriptor_final_x`; `qdrl.qd.repertoires.descriptor_columns`)."""
+    return [f"descriptor_{suffix}" for suffix in descriptor_columns(names, len(names))]
+
+
+@dataclasses.dataclass
+class SkillLog:
+    """What a skill run keeps of its evaluations on the host: a row of skills.csv per episode
+    of every log point of this session, and the trajectories of the log points its skills
+    plot shows (at most `len(shown)` of them: bounded memory).
+
+    skills.csv columns: `log_point`, `env_steps`, `episode` (episode i plays skill
+    i % K), `skill`, `return`, `length`, the descriptor columns (`skill_columns`)
+    and `cell` (the passive-archive cell of the episode's descriptor).
+    """
+
+    descriptor_names: Sequence[str]
+    num_skills: int
+    shown: frozenset[int]  # the log points whose trajectories are kept
+    rows: list[Row] = dataclasses.field(default_factory=list)
+    # log point -> (env steps, trajectories (T, B, D), mask (T, B))
+    trajectories: dict[int, tuple[int, np.ndarray, np.ndarray]] = dataclasses.field(default_factory=dict)
+
+    def add(self, log_point: int, env_steps: int, episodes: Mapping[str, Any], trajectories: Any, mask: Any) -> None:
+        """One evaluation's episodes (host arrays `returns`, `lengths`, `descriptors`, `cells`)."""
+        columns = skill_columns(self.descriptor_names)
+        returns, lengths = np.asarray(episodes["returns"]), np.asarray(episodes["lengths"])
+        descriptors, cells = np.asarray(episodes["descriptors"]), np.asarray(episodes["cells"])
+        for i in range(len(returns)):
+            row: Row = {
+                "log_point": log_point, "env_steps": env_steps, "episode": i, "skill": i % self.num_skills,
+                # float32 values as exact doubles: the csv reads back bit for bit
+                "return": float(returns[i]), "length": int(lengths[i]),
+            }
+            row.update({c: float(v) for c, v in zip(columns, descriptors[i], strict=True)})
+            row["cell"] = int(cells[i])
+            self.rows.append(row)
+        if log_point in self.shown:
+            self.trajectories[log_point] = (env_steps, np.asarray(trajectories), np.asarray(mask))
+
+    def write(self, path: Path, first_log_point: int) -> None:
+        """Writes skills.csv: its rows of log points before `first_log_point` (the earlier
+        sessions of a resumed run), then this session's, as metrics.csv keeps its rows."""
+        header: list[str] = list(self.rows[0]) if self.rows else []
+        kept: list[dict[str, str]] = []
+        if path.is_file():
+            with path.open(newline="") as f:
+                reader = csv.DictReader(f)
+                header = header or list(reader.fieldnames or [])
+                kept = [r for r in reader if int(r["log_point"]) < first_log_point]
+        if not header:
+            return
+        tmp = path.with_suffix(".tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=header)
+            writer.writeheader()
+            writer.writerows(kept)
+            writer.writerows(self.rows)
+        tmp.replace(path)
 
 
 def parse_skills(
@@ -154,36 +244,67 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         """Train for one log interval, evaluate every skill, and offer the episodes to the archive."""
         train, metrics = trainer.run_chunk(state.train)
         ev = evaluate(train.agent, jax.random.fold_in(key0, train.env_steps))
-        archive, qd = feed(state.archive, ev.pop("descriptors"), ev.pop("returns"), archive_cfg.qd_offset)
-        out = dict(metrics)
+        descriptors, returns = ev.pop("descriptors"), ev.pop("returns")
+        archive, qd = feed(state.archive, descriptors, returns, archive_cfg.qd_offset)
+        out: dict[str, Any] = dict(metrics)
         out.update(ev)
         out.update(qd)
+        # Each episode, for skills.csv (log_row takes them out of the metrics row).
+        out["episodes"] = {
+            "returns": returns, "lengths": out.pop("lengths"), "descriptors": descriptors,
+            "cells": archive.cell_index(descriptors),
+        }
         return RLState(train, archive), out
 
-    # The latest evaluation's trajectories (host arrays), for the skills plot at the end.
-    last_eval: dict[str, Any] = {}
+    n = train_cfg.num_chunks
+    skill_log = SkillLog(labels, k, frozenset({0, (n - 1) // 2, n - 1}))
 
     def log_row(state: RLState, metrics: Any) -> Row:
         metrics = dict(metrics)
-        last_eval.update(jax.device_get({k: metrics.pop(k) for k in ("trajectories", "mask") if k in metrics}))
-        counters = {"env_steps": int(state.train.env_steps), "grad_steps": int(state.train.grad_steps)}
+        env_steps = int(state.train.env_steps)
+        kept = jax.device_get({name: metrics.pop(name) for name in ("episodes", "trajectories", "mask")})
+        # Every chunk runs `eval_every` env steps: the log point follows from the count (also on resume).
+        log_point = env_steps // train_cfg.eval_every - 1
+        skill_log.add(log_point, env_steps, kept["episodes"], kept["trajectories"], kept["mask"])
+        counters = {"env_steps": env_steps, "grad_steps": int(state.train.grad_steps)}
         return rl_log_row(counters, metrics)
+
+    def write_skills(out_dir: Path) -> None:
+        """skills.csv after each log point: the rows of this session's log points, after those
+        of the earlier sessions of a resumed run (as metrics.csv keeps them)."""
+        if skill_log.rows:
+            skill_log.write(out_dir / SKILLS_CSV, int(skill_log.rows[0]["log_point"]))
 
     def finish(state: RLState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
         del rows
         write_archive(state.archive, out_dir)
         return {"grad_steps": int(np.asarray(state.train.grad_steps))}
 
+    def policy(agent_state: AgentState, skill: int | None) -> Callable[[Array], Array]:
+        if skill is None:
+            raise ValueError(f"skill: expected an int in [0, {k}), got None")
+        return skill_policy(sd, agent_state, skill)
+
+    def evaluation(state: RLState, record: Any) -> tuple[Episodes, Array]:
+        """The episodes of `evaluate` in the chunk that reached `state` (its key, width and descriptors)."""
+        run_key = jax.random.split(jax.random.fold_in(key0, state.train.env_steps))[0]
+        ep = skill_episodes(sd, state.train.agent, run_key, num_eval, record)
+        return ep, episode_descriptors(ep, archive_cfg.descriptor, archive_cfg.low, archive_cfg.high)
+
     def plot(state: RLState, rows: list[Row], out_dir: Path) -> None:
         del rows
         plot_archive(state.archive, archive_cfg, labels, out_dir, title)
-        ev = last_eval
-        if not ev:  # a resumed run with no chunk left: evaluate once more
-            ev = jax.device_get(jax.jit(evaluate)(state.train.agent, jax.random.fold_in(key0, 0xF1)))
+        shown = dict(skill_log.trajectories)
+        last = int(state.train.env_steps) // train_cfg.eval_every - 1
+        if last not in shown:  # a resumed run with no chunk left: its last evaluation once more
+            ep, _ = jax.device_get(jax.jit(evaluation, static_argnums=1)(state, None))
+            shown[last] = (int(state.train.env_steps), np.asarray(ep.transitions.next_desc), np.asarray(ep.mask))
+        panels = {f"{steps:,} env steps": traj for _, (steps, traj, _) in sorted(shown.items())}
+        masks = {f"{steps:,} env steps": mask for _, (steps, _, mask) in sorted(shown.items())}
         plotting.plot_skills(
-            np.asarray(ev["trajectories"]),
+            panels,
             np.arange(num_eval) % k,
-            np.asarray(ev["mask"]),
+            masks,
             out_dir / "plots" / "skills.png",
             archive_cfg.low,
             archive_cfg.high,
@@ -192,6 +313,7 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
             trajectories_are_positions=archive_cfg.descriptor == "final",
             walls=plotting.env_walls(base_env),
             labels=labels,
+            num_skills=k,
         )
 
     return Algorithm(
@@ -209,6 +331,8 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         placement=ctx.placement,
         state_axes=RLState(STATE_AXES, None),  # type: ignore[arg-type]
         descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),
+        agent=AgentParts(base_env, k, lambda state: state.train.agent, policy, evaluation),
+        on_log_point=write_skills,
     )
 
 
