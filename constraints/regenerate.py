@@ -1,6 +1,6 @@
 """Regenerate the constraints files CI installs: `python3 constraints/regenerate.py [3.11 3.12 3.13]`.
 
-For each Python version, in a fresh virtual environment, installs qdrl with its test and docs
+For each Python version, in a fresh virtual environment, installs qdrl with its test, docs and notebooks
 extras and writes `pip freeze` (qdrl itself left out) to `constraints/py<version>.txt`. Versions in
 LOWEST resolve qdrl's direct dependencies to the lower bounds of pyproject.toml (so CI keeps
 testing the bounds qdrl declares); the others take the newest releases that install.
@@ -30,10 +30,10 @@ _LOWER_BOUND = re.compile(r"^([A-Za-z0-9_.-]+)(\[[^\]]*\])?\s*>=\s*([^,;\s]+)")
 
 
 def lower_bounds(pyproject: Path) -> list[str]:
-    """`name==version` for every direct dependency (core, test and docs) that has a `>=` bound."""
+    """`name==version` for every direct dependency (core, test, docs and notebooks) that has a `>=` bound."""
     project = tomllib.loads(pyproject.read_text())["project"]
     extras = project["optional-dependencies"]
-    requirements = project["dependencies"] + extras["test"] + extras["docs"]
+    requirements = project["dependencies"] + extras["test"] + extras["docs"] + extras["notebooks"]
     pins = []
     for requirement in requirements:
         match = _LOWER_BOUND.match(requirement)
@@ -43,13 +43,13 @@ def lower_bounds(pyproject: Path) -> list[str]:
 
 
 def freeze(python: str, lowest: bool) -> str:
-    """The `pip freeze` of a fresh venv of `python` holding qdrl[test,docs], qdrl left out."""
+    """The `pip freeze` of a fresh venv of `python` holding qdrl[test,docs,notebooks], qdrl left out."""
     with tempfile.TemporaryDirectory() as tmp:
         venv = Path(tmp) / "venv"
         subprocess.run([python, "-m", "venv", str(venv)], check=True)
         pip = [str(venv / "bin" / "python"), "-m", "pip"]
         subprocess.run([*pip, "install", "-q", "--upgrade", "pip"], check=True)
-        install = [*pip, "install", "-q", f"{REPO}[test,docs]"]
+        install = [*pip, "install", "-q", f"{REPO}[test,docs,notebooks]"]
         if lowest:
             bounds = Path(tmp) / "lower-bounds.txt"
             bounds.write_text("\n".join(lower_bounds(REPO / "pyproject.toml")) + "\n")
