@@ -61,6 +61,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     if args.devices is not None:
         args.set = [*args.set, f"experiment.devices={args.devices}"]
+    if args.time_limit is not None:
+        args.set = [*args.set, f"experiment.time_limit_s={args.time_limit}"]
     out_dir = Path(args.out) if args.out else experiment.default_out_dir(args.spec)
     resume = experiment.resume_command(args.spec, args.set, out_dir, args.seeds)
     try:
@@ -195,6 +197,11 @@ def main(argv: list[str] | None = None) -> int:
         "--check", action="store_true",
         help="check the spec and build its run without compiling or running it; "
         "print the resolved spec (every default filled in) as TOML",
+    )
+    p_run.add_argument(
+        "--time-limit", type=float, default=None, metavar="SECONDS",
+        help="stop at the first log point past SECONDS of wall time (experiment.time_limit_s), "
+        "with a checkpoint and a summary; --resume with a larger limit continues",
     )
     p_run.add_argument(
         "--devices", type=int, default=None, metavar="N",

@@ -245,13 +245,34 @@ def _check_resume_spec(config_path: Path, config_text: str, length_key: str) -> 
     if not config_path.is_file():
         raise ConfigError(f"--resume: {config_path} is missing; expected the resolved spec of the run")
     changes = spec_changes(config_path.read_text(), config_text)
-    fixed = [c for c in changes if c[0] != length_key and not c[0].startswith("log.")]
+    free = (length_key, TIME_LIMIT_KEY)
+    fixed = [c for c in changes if c[0] not in free and not c[0].startswith("log.")]
     if fixed:
         listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in changes)
         raise ConfigError(
             f"--resume: the spec differs from {config_path}: {listed}; only "
-            f"{length_key} (to extend the run) and [log] may change on resume"
+            f"{length_key} (to extend the run), {TIME_LIMIT_KEY} and [log] may change on resume"
         )
+
+
+def _check_time_limit(out_dir: Path, time_limit_s: float | None) -> None:
+    """Refuses (before compiling) to resume a run stopped at its time limit with a limit that
+    its wall time has already reached: it would stop again at once."""
+    try:
+        summary = json.loads((out_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return
+    if not isinstance(summary, dict) or summary.get("stopped_by") != "time_limit":
+        return
+    spent = float(summary.get("wall_s", 0.0))
+    if time_limit_s is not None and time_limit_s <= spent:
+        raise ConfigError(
+            f"--resume: {out_dir} stopped at its time limit after {spent:.0f} s; expected a larger "
+            f"{TIME_LIMIT_KEY} (--time-limit) than that, or none, got {time_limit_s:g}"
+        )
+
+
+TIME_LIMIT_KEY = "experiment.time_limit_s"
 
 
 def _newest_log_point(ckpt_dir: Path) -> tuple[Path | None, int]:
@@ -357,6 +378,7 @@ class _Session:
     wall_offset: float = 0.0
     run_s: float = 0.0
     compile_s: float = 0.0  # the chunk's compilation
+    stopped_at: int = 0  # log points done when the time limit stopped the run (0: not stopped)
     startup_s: float = 0.0  # this session's start: initial state, checkpoint, compilations
 
     @property
@@ -386,6 +408,7 @@ def _open(spec: Mapping[str, Any], out_dir: Path, resume: bool, overwrite: bool,
             raise ConfigError(f"--resume: no checkpoint found in {s.ckpt_dir}")
         _check_resume_spec(out_dir / "config.toml", s.config_text, length_key)
         _check_resume_checkpoints(found, alg.num_chunks, length_key)
+        _check_time_limit(out_dir, exp.time_limit_s)
     if s.primary and overwrite and not resume and out_dir.exists():
         shutil.rmtree(out_dir)
     if s.primary:
@@ -478,6 +501,12 @@ def _loop(
             if not saved:
                 last_saved = save(chunk, row, wall_s)
             raise RunInterrupted(s.out_dir, last_saved, chunk + 1, alg.num_chunks)
+        limit = s.exp.time_limit_s
+        if limit is not None and wall_s >= limit and not last:  # the budget is spent: stop here
+            if not saved:
+                last_saved = save(chunk, row, wall_s)
+            s.stopped_at = chunk + 1
+            break
     return state
 
 
@@ -496,6 +525,11 @@ def _summary(s: _Session, state: Any) -> dict[str, Any]:
         "startup_s": s.startup_s,
         "run_s": s.run_s,
     }
+    if s.stopped_at:  # why the run ended before its length
+        summary.update({
+            "stopped_by": "time_limit", "time_limit_s": s.exp.time_limit_s,
+            "log_points": s.stopped_at, "num_log_points": alg.num_chunks,
+        })
     if "env_steps_per_s" in final:
         summary["env_steps_per_s"] = final["env_steps_per_s"]
     if "evaluations" in final:
@@ -597,6 +631,12 @@ def run(
             state = _loop(s, state, chunk_fn, restored, progress, dashboards, stop, worker)
         finally:
             progress.close()
+    if s.stopped_at:
+        print(
+            f"qdrl: stopped at the time limit ({s.exp.time_limit_s:g} s) after log point {s.stopped_at} "
+            f"of {alg.num_chunks} ({s.rows[-1]['wall_s']:.0f} s); --resume with a larger "
+            f"{TIME_LIMIT_KEY} (--time-limit) continues it", file=sys.stderr,
+        )
     return _summary(s, state)
 
 

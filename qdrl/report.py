@@ -72,15 +72,16 @@ def _folder(run: LoadedRun) -> str:
 def _labels(runs: Sequence[LoadedRun]) -> dict[Path, str]:
     """Each run's label: its spec's name (`experiment.name`), with the folder's name added
     where runs of one spec name lie in several folders (a spec run twice with other --set
-    values)."""
+    values), except in the folder named after the spec (`qdrl run`'s default)."""
     names = {run.path: str(run.config["experiment"].get("name") or _folder(run)) for run in runs}
     folders: dict[str, set[str]] = {}
     for run in runs:
         folders.setdefault(names[run.path], set()).add(_folder(run))
-    return {
-        run.path: names[run.path] if len(folders[names[run.path]]) == 1 else f"{names[run.path]} ({_folder(run)})"
-        for run in runs
-    }
+    labels = {}
+    for run in runs:
+        name, folder = names[run.path], _folder(run)
+        labels[run.path] = name if len(folders[name]) == 1 or folder == name else f"{name} ({folder})"
+    return labels
 
 
 def collect(paths: Sequence[str | Path]) -> list[Group]:

@@ -149,6 +149,35 @@ def test_resuming_a_finished_run_says_so_and_compiles_nothing(
     assert {p.name: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before  # untouched
 
 
+def test_a_time_limit_stops_at_a_log_point_and_a_larger_one_resumes(
+    tmp_path: Path, full: tuple[Path, Path, dict[str, Any]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    spec, ref_out, ref = full
+    out = tmp_path / "out"
+    # A limit already spent by the first log point: the run stops there, a result of its own.
+    assert main(["run", str(spec), "--out", str(out), "--time-limit", "1e-6"]) == 0
+    err = capsys.readouterr().err
+    assert "stopped at the time limit (1e-06 s) after log point 1 of 4" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stopped_by"] == "time_limit" and (summary["log_points"], summary["num_log_points"]) == (1, 4)
+    assert summary["iteration"] == 2 and len(read_csv(out / "metrics.csv")) == 1
+    assert [p.name for p in checkpoint.checkpoints(out / "checkpoints")] == ["step_0000000001"]
+    assert (out / "repertoire.npz").is_file()  # exports and plots as at the end of a run
+    # The same limit again would stop at once: refused before anything compiles.
+    with pytest.raises(ConfigError, match=r"stopped at its time limit after 0 s; expected a larger "
+                       r"experiment\.time_limit_s \(--time-limit\)"):
+        run_spec(spec, ["experiment.time_limit_s=1e-6"], out, resume=True)
+    # Without a limit (or a larger one) it continues to the end, as the uninterrupted run.
+    resumed = run_spec(spec, [], out, resume=True)
+    assert "stopped_by" not in resumed
+    assert_same_run(out, resumed, ref_out, ref)
+    # The limit compiles nothing different: the same compile record as without it.
+    config = (out / "config.toml").read_text()
+    assert compile_cache.spec_key(config) == compile_cache.spec_key(
+        config.replace("[experiment]\n", "[experiment]\ntime_limit_s = 60.0\n", 1)
+    )
+
+
 def test_resume_names_each_differing_key(
     tmp_path: Path, full: tuple[Path, Path, dict[str, Any]], compilations: Any
 ) -> None:
@@ -161,7 +190,7 @@ def test_resume_names_each_differing_key(
     assert str(info.value).startswith(
         f"--resume: the spec differs from {out / 'config.toml'}: "
         "emitter.iso_sigma 0.01 -> 0.02, qd.num_iterations 8 -> 12; only qd.num_iterations "
-        "(to extend the run) and [log] may change on resume"
+        "(to extend the run), experiment.time_limit_s and [log] may change on resume"
     )
     with pytest.raises(ConfigError, match=r"--resume: expected a length of at least the 4 log points"):
         run_spec(spec, ["qd.num_iterations=4"], out, resume=True)

@@ -132,13 +132,14 @@ def test_metrics_and_repertoires_of_a_sweep_load_in_one_call(sweep: dict[str, An
 def test_report_of_the_sweep_and_the_single_run(sweep: dict[str, Any], tmp_path: Path) -> None:
     result = report([sweep["out"], sweep["root"] / "single"], tmp_path / "report")
     (group,) = result["groups"].values()
-    assert group["labels"] == {"arm_tiny": [0, 1], "single": [1]}
+    # one spec in two folders: the one named after it, and "single" (named beside the spec)
+    assert group["labels"] == {"arm_tiny": [0, 1], "arm_tiny (single)": [1]}
     figures = {Path(f["path"]).stem: f for f in group["figures"]}
     assert figures["qd_score"]["x"] == ["evaluations", "wall_s"]  # the arm counts no env steps
     assert Path(figures["qd_score"]["path"]).stat().st_size > 10_000
     assert Path(group["repertoires"]).stat().st_size > 10_000
     table = (tmp_path / "report" / "report.md").read_text()
-    assert "| arm_tiny | 0, 1 | " in table and "| single | 1 | " in table
+    assert "| arm_tiny | 0, 1 | " in table and "| arm_tiny (single) | 1 | " in table
     final = pd.read_csv(tmp_path / "report" / "final.csv")
     row = final[(final.spec == "arm_tiny") & (final.metric == "qd_score")].iloc[0]
     scores = [sweep["printed"]["runs"][s]["qd_score"] for s in "01"]

@@ -22,7 +22,7 @@ from typing import Annotated, Any, NamedTuple
 import numpy as np
 
 from qdrl import loggers
-from qdrl.config import NonNegativeInt, PositiveInt, Range, check_fields
+from qdrl.config import NonNegativeInt, PositiveFloat, PositiveInt, Range, check_fields
 from qdrl.placement import Placement, make_placement, resolve_devices
 
 __all__ = [
@@ -56,6 +56,10 @@ class ExperimentConfig:
     # Devices the run spreads its batch over (qdrl.placement); 0: every visible device
     # (of every process under jax.distributed). Batch sizes must divide by it.
     devices: NonNegativeInt = 0
+    # A wall-clock budget (seconds, compilation and every earlier session of a resumed run
+    # included): the run stops at the first log point past it, with a checkpoint and its
+    # summary (`stopped_by = "time_limit"`); `--resume` with a larger limit continues it.
+    time_limit_s: PositiveFloat | None = None
 
     def check(self) -> None:
         check_fields(self, "experiment")
