@@ -24,14 +24,13 @@ import brax
 import jax
 import jax.numpy as jnp
 
-from qdrl import bench_scaling, envs
+from qdrl import bench_scaling, compiling, envs
 from qdrl import hlo_profile as profiler
 from qdrl.agents import AGENTS, SACConfig
 from qdrl.agents.dads import DADSConfig
 from qdrl.agents.diayn import DIAYNConfig
 from qdrl.agents.skill_discovery import make_skill_discovery
 from qdrl.agents.smerl import SMERLConfig
-from qdrl.compiling import compile_timed
 from qdrl.off_policy import TrainConfig, make_trainer
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.map_elites import MapElites
@@ -111,7 +110,7 @@ def time_trainer(
         init = lambda k: jax.vmap(trainer.init)(jax.random.split(k, population))  # noqa: E731
         run_chunk = jax.vmap(trainer.run_chunk)
     state = jax.jit(init)(jax.random.PRNGKey(seed))  # jit: distinct buffers for donation
-    compiled = compile_timed(run_chunk, state, donate_argnums=0)
+    compiled = compiling.compile_timed(run_chunk, state, donate_argnums=0)
     chunk = compiled.fn
     state, _ = chunk(state)  # warm-up chunk (fills the buffer past learning_starts)
     jax.block_until_ready(state)
@@ -202,7 +201,7 @@ class TimedRun(NamedTuple):
 def _time_run(me: Any, state: Any, iterations: int, with_hlo: bool = False) -> TimedRun:
     """Compile `iterations` MAP-Elites steps as one scan ahead of time, then run it once."""
     jax.block_until_ready(state)
-    compiled = compile_timed(lambda s: me.run(s, iterations), state)
+    compiled = compiling.compile_timed(lambda s: me.run(s, iterations), state)
     t0 = time.perf_counter()
     state, metrics = compiled.fn(state)
     jax.block_until_ready(state)
@@ -299,7 +298,7 @@ def time_task(
     for batch in batches:
         task = make_task(name, episode_length=episode_length, eval_batch=batch)
         genotypes = task.init_genotypes(key, batch)
-        compiled = compile_timed(task.scoring_fn, genotypes, key)
+        compiled = compiling.compile_timed(task.scoring_fn, genotypes, key)
         score = compiled.fn
         jax.block_until_ready(score(genotypes, key))
         times = []

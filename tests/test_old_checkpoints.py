@@ -29,7 +29,7 @@ from qdrl.config import ConfigError, load_toml
 from qdrl.experiment import run
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "checkpoints_0.1.0"
-TIMED = ("wall_s", "compile_s", "run_s", "env_steps_per_s", "evaluations_per_s")
+TIMED = ("wall_s", "compile_s", "startup_s", "run_s", "env_steps_per_s", "evaluations_per_s")
 
 
 COUNTERS = ("env_steps", "evaluations", "grad_steps", "iteration", "generation", "log_point")
