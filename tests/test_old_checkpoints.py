@@ -70,7 +70,15 @@ def _resume(name: str, tmp_path: Path) -> tuple[Path, dict[str, Any]]:
     return out, summary
 
 
-@pytest.mark.parametrize("name", sorted(p.name for p in FIXTURES.iterdir()))
+# The default run resumes three of the five (a QD run, CMA-ES and SAC); QD-PG's and PBT's
+# states (critics, buffers, a population) compile programs of their own: `-m slow`.
+SLOW = ("qdpg_point_maze_cpu", "sac_pbt_halfcheetah_cpu")
+
+
+@pytest.mark.parametrize(
+    "name",
+    [n if n not in SLOW else pytest.param(n, marks=pytest.mark.slow) for n in sorted(p.name for p in FIXTURES.iterdir())],
+)
 def test_a_checkpoint_of_qdrl_0_1_0_resumes_bit_identically(name: str, tmp_path: Path) -> None:
     layout = state_layout(FIXTURES / name / "checkpoints")
     out, summary = _resume(name, tmp_path)

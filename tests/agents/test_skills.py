@@ -362,7 +362,7 @@ def test_default_storage_is_the_ring_buffer() -> None:
         np.testing.assert_array_equal(x, y)
 
 
-@pytest.mark.parametrize("algo", ["diayn", "dads"])
+@pytest.mark.parametrize("algo", ["diayn", pytest.param("dads", marks=pytest.mark.slow)])  # the gate is DIAYN's or DADS's alike
 def test_smerl_trains_through_the_loop_with_episode_returns(algo: str) -> None:
     base = PointMazeEnv(episode_length=10)
     env = SkillEnv(base, K)

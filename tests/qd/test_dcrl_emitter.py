@@ -326,6 +326,7 @@ checkpoint_every = 1
 """
 
 
+@pytest.mark.slow  # the driver's resume of an actor-critic emitter's state: PGA-ME's test, by default
 def test_dcrl_me_runs_through_qdrl_run_and_resumes_with_its_emitter_state(
     tmp_path: Path, resumes_bit_identically: Any
 ) -> None:
