@@ -44,14 +44,14 @@ __all__ = ["render", "write_html", "write_path_png", "write_paths_png"]
 
 
 def _replayed_env(run: LoadedRun) -> Any:
-    """The environment a render replays: a QD run's task's, or a skill-discovery run's agent's."""
+    """The environment a render replays: a QD run's task's, or the agent's of an RL or skill run."""
     if run.is_qd:
         return run.qd_task.env
     parts = run.run.agent
-    if parts is None or parts.num_skills == 0:
+    if parts is None:
         raise RunError(
-            f"render: expected a QD run (an elite's replay) or a skill-discovery run (a skill's); this "
-            f"{run.algorithm} run's passive archive stores no genotypes and its agent has no skills"
+            f"render: expected a QD run (an elite's replay) or a run of one agent (SAC, TD3, a skill's); "
+            f"this {run.algorithm} run's passive archive stores no genotypes and it has no agent"
         )
     return parts.env
 
@@ -100,9 +100,10 @@ def render(
     with run.compiling():
         if not run.is_qd:
             if cell is not None:
+                k = run.num_skills
                 raise RunError(
-                    f"--cell: expected a QD run's elite; this {run.algorithm} run has skills: "
-                    f"pass --skill Z (0 to {run.num_skills - 1})"
+                    f"--cell: expected a QD run's elite; this {run.algorithm} run replays its agent"
+                    + (f": pass --skill Z (0 to {k - 1})" if k else " (no option needed)")
                 )
             return _render_skills(run, kind, suffixes, skill, out, offline)
         if skill is not None:
@@ -138,7 +139,20 @@ def _render_skills(
     run: LoadedRun, kind: str, suffixes: tuple[str, ...], skill: int | None, out: str | Path | None,
     offline: bool = True,
 ) -> dict[str, Any]:
-    """One skill's replay, or (PNG, no skill) every skill's path on one figure."""
+    """One skill's replay, or (PNG, no skill) every skill's path on one figure; an agent without
+    skills (SAC, TD3): its evaluation's first episode (`replay_agent.png|html`)."""
+    if run.num_skills == 0:
+        path = _out_path(run, out, "replay_agent", suffixes)
+        episode = run.rollout(skill=skill)  # RunError for a skill given
+        env = run.require_agent("render").env
+        title = f"{run.algorithm} on {run.task_name}: return {episode.return_:.2f}"
+        if path.suffix == ".html":
+            write_html(env.brax_env.sys, episode, path, offline)
+        else:
+            space = run.run.descriptor_space
+            low, high = (space.low, space.high) if space is not None else ((-1.0, -1.0), (1.0, 1.0))
+            _write_maze_png({"agent": episode}, path, env, kind, low, high, title)
+        return {"out": str(path), "return": episode.return_, "length": episode.length}
     every = skill is None and (Path(out).suffix if out is not None else suffixes[0]) == ".png"
     path = _out_path(run, out, "replay_skills" if every else f"replay_skill{skill or 0}", suffixes)
     shown = range(run.num_skills) if every else [skill or 0]

@@ -243,7 +243,8 @@ def test_an_rl_run_loads_without_genotypes(tmp_path: Path, capsys: pytest.Captur
         _ = best.genotype
     with pytest.raises(RunError, match="expected a QD run"):
         run.rollout(best)
-    assert "passive archive stores no genotypes" in _error(["render", str(out)], capsys)
+    # its agent replays (tests/test_skills_run.py), but not on this environment
+    assert "render: expected a run of a brax task or point_maze, got task 'point'" in _error(["render", str(out)], capsys)
 
 
 def _fake_episode(num_links: int, length: int) -> Trajectory:

@@ -27,6 +27,7 @@ from qdrl.algorithms.skills import skill_columns, skill_task
 from qdrl.cli import main
 from qdrl.config import ConfigError, dump_toml, load_toml
 from qdrl.experiment import build_run, run
+from qdrl.render import render
 from qdrl.runs import LoadedRun, RunError, load_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -333,7 +334,7 @@ def test_render_draws_one_skill_or_every_skill(
     every = json.loads(capsys.readouterr().out)
     assert every["out"] == str(diayn.path / "plots" / "replay_skills.png") and Path(every["out"]).stat().st_size > 10_000
     assert every["skills"] == list(range(K)) and every["returns"] == last["return"].iloc[:K].tolist()
-    assert "--cell: expected a QD run's elite; this diayn run has skills: pass --skill Z (0 to 3)" in _error(
+    assert "--cell: expected a QD run's elite; this diayn run replays its agent: pass --skill Z (0 to 3)" in _error(
         ["render", str(diayn.path), "--cell", "0"], capsys
     )
     assert "expected an int in [0, 4)" in _error(["render", str(diayn.path), "--skill", "4"], capsys)
@@ -401,3 +402,9 @@ def test_a_sac_run_gives_its_agent_without_a_skill(tmp_path: Path) -> None:
     assert episode.return_ == sac.metrics["eval_return"].iloc[-1]
     np.testing.assert_allclose(jax.jit(sac.policy())(episode.observations), episode.actions, rtol=1e-6, atol=1e-6)
     assert int(sac.agent().steps) == sac.summary["grad_steps"]  # type: ignore[index]
+    # SAC on the point maze renders like a skill: a PNG of its evaluation's first episode
+    maze_dir = tmp_path / "maze"
+    run({**spec, "env": {"name": "point_maze", "episode_length": 20}}, maze_dir)
+    result = render(load_run(maze_dir))
+    assert Path(result["out"]).name == "replay_agent.png" and Path(result["out"]).stat().st_size > 1000
+    assert result["return"] == load_run(maze_dir).metrics["eval_return"].iloc[-1]
