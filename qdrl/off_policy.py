@@ -30,7 +30,7 @@ from qdrl.agents.base import Agent, AgentState
 from qdrl.config import NonNegativeInt, PositiveInt, check_fields
 from qdrl.envs.base import Env, EnvState, reset_batch
 from qdrl.placement import Placement
-from qdrl.rollout import env_step, run_episodes
+from qdrl.rollout import Episodes, RecordFn, env_step, run_episodes
 from qdrl.types import Array, PRNGKey, Transition
 
 
@@ -124,6 +124,9 @@ class Trainer(NamedTuple):
     init: Callable[[PRNGKey], TrainState]
     run_chunk: Callable[[TrainState], tuple[TrainState, dict[str, Array]]]
     evaluate: Callable[[AgentState, PRNGKey], dict[str, Array]]
+    # The episodes `evaluate` plays from the same key (`record` as in `run_episodes`): a loaded
+    # run replays them (`qdrl.load_run(...).rollout()`).
+    episodes: Callable[..., Episodes]
 
 
 def _transition_example(env: Env) -> Transition:
@@ -216,11 +219,14 @@ def make_trainer(
         # nan marks iterations without updates; average over the others.
         return ts, jax.tree.map(lambda m: jnp.nanmean(m, axis=0), metrics)
 
-    def evaluate(agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
+    def eval_episodes(agent_state: AgentState, key: PRNGKey, record: RecordFn | None = None) -> Episodes:
         params = agent.policy_params(agent_state)
-        episodes = run_episodes(
-            env, lambda obs, _: agent.policy(params, obs), key, config.num_eval_envs
+        return run_episodes(
+            env, lambda obs, _: agent.policy(params, obs), key, config.num_eval_envs, record=record
         )
+
+    def evaluate(agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
+        episodes = eval_episodes(agent_state, key)
         return {
             "eval_return": jnp.mean(episodes.returns),
             "eval_return_std": jnp.std(episodes.returns),
@@ -230,4 +236,4 @@ def make_trainer(
             "eval_mean_desc": episodes.mean_desc,
         }
 
-    return Trainer(init=init, run_chunk=run_chunk, evaluate=evaluate)
+    return Trainer(init=init, run_chunk=run_chunk, evaluate=evaluate, episodes=eval_episodes)

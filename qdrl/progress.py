@@ -52,22 +52,17 @@ class RunProgress:
         self._stream.flush()
         self._last_line = time.perf_counter()
 
-    def preparing(self, what: str) -> None:
-        """Shows a timer for a host computation before compiling (`what`, e.g. "computing 1024
-        CVT cells (k-means of 50,000 samples)")."""
-        if not self.enabled:
-            return
-        self._t0, self._phase, self._what, self._note = time.perf_counter(), "preparing", what, ""
+    def _begin(self, phase: str, what: str, note: str) -> None:
+        """Starts a timer line: `what ... N s` (and `note`) until `_end`."""
+        self._t0, self._phase, self._what, self._note = time.perf_counter(), phase, what, note
         if self.plain:
-            self._line(what)
+            self._line(what + note)
             return
         self._bar = tqdm(total=None, bar_format="{desc}", dynamic_ncols=True, file=self._stream)
         self.tick()
 
-    def prepared(self, seconds: float) -> None:
-        if not self.enabled:
-            return
-        text = f"{self._what}: {seconds:.1f} s"
+    def _end(self, text: str) -> None:
+        """Ends a timer line with `text` (on a terminal it replaces the line)."""
         self._phase = ""
         if self._bar is not None:
             self._bar.set_description_str(text, refresh=False)
@@ -76,24 +71,27 @@ class RunProgress:
         elif self.plain:
             self._line(text)
 
+    def preparing(self, what: str) -> None:
+        """Shows a timer for a host computation before compiling (`what`, e.g. "computing 1024
+        CVT cells (k-means of 50,000 samples)")."""
+        if self.enabled:
+            self._begin("preparing", what, "")
+
+    def prepared(self, seconds: float) -> None:
+        if self.enabled:
+            self._end(f"{self._what}: {seconds:.1f} s")
+
     def compiling(self, estimate: tuple[float, bool] | None) -> None:
         """Shows the compile timer; `estimate`: (seconds, measured on this very spec) or None."""
         if not self.enabled:
             return
-
         if estimate is None:
-            self._note = " (first run of this spec here: no estimate yet)"
+            note = " (first run of this spec here: no estimate yet)"
         elif estimate[1]:
-            self._note = f" (last run of this spec: {estimate[0]:.0f} s)"
+            note = f" (last run of this spec: {estimate[0]:.0f} s)"
         else:
-            self._note = f" (first run of this spec: about {estimate[0]:.0f} s)"
-        self._t0 = time.perf_counter()
-        self._phase, self._what = "compiling", f"compiling {self.label}"
-        if self.plain:
-            self._line(f"compiling {self.label}{self._note}")
-            return
-        self._bar = tqdm(total=None, bar_format="{desc}", dynamic_ncols=True, file=self._stream)
-        self.tick()
+            note = f" (first run of this spec: about {estimate[0]:.0f} s)"
+        self._begin("compiling", f"compiling {self.label}", note)
 
     def tick(self) -> None:
         elapsed = time.perf_counter() - self._t0
@@ -108,16 +106,8 @@ class RunProgress:
     def compiled(self, compile_s: float, startup_s: float) -> None:
         """Compilation done: `compile_s` the chunk's compile (summary.json's `compile_s`),
         `startup_s` everything before the first chunk (initial state, checkpoint, compiles)."""
-        if not self.enabled:
-            return
-        text = f"compiled {self.label} in {compile_s:.1f} s (started in {startup_s:.1f} s)"
-        self._phase = ""
-        if self._bar is not None:
-            self._bar.set_description_str(text, refresh=False)
-            self._bar.close()
-            self._bar = None
-        elif self.plain:
-            self._line(text)
+        if self.enabled:
+            self._end(f"compiled {self.label} in {compile_s:.1f} s (started in {startup_s:.1f} s)")
 
     def start(self, done: int) -> None:
         if not self.enabled:

@@ -149,9 +149,7 @@ def _render_skills(
         if path.suffix == ".html":
             write_html(env.brax_env.sys, episode, path, offline)
         else:
-            space = run.run.descriptor_space
-            low, high = (space.low, space.high) if space is not None else ((-1.0, -1.0), (1.0, 1.0))
-            _write_maze_png({"agent": episode}, path, env, kind, low, high, title)
+            _write_maze_png({"agent": episode}, path, env, kind, *_bounds(run), title)
         return {"out": str(path), "return": episode.return_, "length": episode.length}
     every = skill is None and (Path(out).suffix if out is not None else suffixes[0]) == ".png"
     path = _out_path(run, out, "replay_skills" if every else f"replay_skill{skill or 0}", suffixes)
@@ -167,9 +165,7 @@ def _render_skills(
             f"{what}: {len(returns)} skills, returns {min(returns):.2f} to {max(returns):.2f}" if every
             else f"{what}, skill {skill}: return {returns[0]:.2f}"
         )
-        space = run.run.descriptor_space
-        low, high = (space.low, space.high) if space is not None else ((-1.0, -1.0), (1.0, 1.0))
-        _write_maze_png({f"skill {z}": e for z, e in episodes.items()}, path, env, kind, low, high, title)
+        _write_maze_png({f"skill {z}": e for z, e in episodes.items()}, path, env, kind, *_bounds(run), title)
     if every:
         return {
             "out": str(path), "skills": list(episodes),
@@ -177,6 +173,12 @@ def _render_skills(
         }
     ((z, episode),) = episodes.items()
     return {"out": str(path), "skill": z, "return": episode.return_, "length": episode.length}
+
+
+def _bounds(run: LoadedRun) -> tuple[Any, Any]:
+    """The run's descriptor bounds (its passive archive's), the axes of a maze's PNG."""
+    space = run.run.descriptor_space
+    return (space.low, space.high) if space is not None else ((-1.0, -1.0), (1.0, 1.0))
 
 
 def _write_maze_png(

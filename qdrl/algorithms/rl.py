@@ -38,8 +38,8 @@ from qdrl.off_policy import STATE_AXES, TrainConfig, TrainState, make_trainer
 from qdrl.placement import check_divisible
 from qdrl.qd.repertoires import CellRepertoire, export_npz, passive_archive, write_csv
 from qdrl.qd.repertoires.passive import feed
-from qdrl.rollout import Episodes, run_episodes
-from qdrl.types import Array
+from qdrl.rollout import Episodes
+from qdrl.types import Array, PRNGKey
 
 __all__ = ["SAC", "TD3", "ArchiveConfig", "EnvConfig", "RLState", "archive_labels", "plot_archive", "write_archive"]
 
@@ -185,6 +185,11 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
     archive_cfg.check_size(env.descriptor_size, env_cfg.name)
     trainer = make_trainer(env, agent, train_cfg, placement=ctx.placement)
     key0 = eval_key(ctx.seed)
+
+    def eval_key_at(env_steps: Array) -> PRNGKey:
+        """The key of the evaluation after `env_steps` (the chunk's, and a replay's)."""
+        return jax.random.fold_in(key0, env_steps)
+
     labels = archive_labels(env, archive_cfg)
     title = f"{ctx.algorithm} on {env_cfg.name}"
 
@@ -194,7 +199,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
     def chunk(state: RLState) -> tuple[RLState, dict[str, Any]]:
         """Train for one log interval, evaluate, and offer the episodes to the archive."""
         train, metrics = trainer.run_chunk(state.train)
-        ev = trainer.evaluate(train.agent, jax.random.fold_in(key0, train.env_steps))
+        ev = trainer.evaluate(train.agent, eval_key_at(train.env_steps))
         desc = ev["eval_final_desc"] if archive_cfg.descriptor == "final" else ev["eval_mean_desc"]
         archive, qd = feed(state.archive, desc, ev["eval_returns"], archive_cfg.qd_offset)
         out = dict(metrics)
@@ -212,10 +217,8 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         return lambda obs: agent.policy(params, obs)
 
     def evaluation(state: RLState, record: Any) -> tuple[Episodes, Array]:
-        """The episodes of `trainer.evaluate` after `state`'s env steps (its key and width)."""
-        act = policy(state.train.agent, None)
-        key = jax.random.fold_in(key0, state.train.env_steps)
-        ep = run_episodes(env, lambda obs, _: act(obs), key, train_cfg.num_eval_envs, record=record)
+        """The episodes of `trainer.evaluate` after `state`'s env steps (the chunk's key)."""
+        ep = trainer.episodes(state.train.agent, eval_key_at(state.train.env_steps), record)
         return ep, ep.final_desc if archive_cfg.descriptor == "final" else ep.mean_desc
 
     def finish(state: RLState, rows: list[Row], out_dir: Path) -> dict[str, Any]:
