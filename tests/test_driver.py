@@ -164,7 +164,7 @@ def test_a_time_limit_stops_at_a_log_point_and_a_larger_one_resumes(
     assert [p.name for p in checkpoint.checkpoints(out / "checkpoints")] == ["step_0000000001"]
     assert (out / "repertoire.npz").is_file()  # exports and plots as at the end of a run
     # The same limit again would stop at once: refused before anything compiles.
-    with pytest.raises(ConfigError, match=r"stopped at its time limit after \\d+ s; expected a larger "
+    with pytest.raises(ConfigError, match=r"stopped at its time limit after \d+ s; expected a larger "
                        r"experiment\.time_limit_s \(--time-limit\)"):
         run_spec(spec, ["experiment.time_limit_s=1e-6"], out, resume=True)
     # Without a limit (or a larger one) it continues to the end, as the uninterrupted run.
