@@ -102,7 +102,12 @@ class Worker:
     def __enter__(self) -> Worker:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
         if self._thread is not None:
             self._calls.put(None)  # the worker ends after its current call
+            if exc_type is None:
+                # Its calls are done: wait for it to end, so that no daemon thread is still
+                # letting go of XLA objects when the interpreter exits (which aborts the process).
+                # After an exception (Ctrl-C) its call may still run: the caller exits at once.
+                self._thread.join()
             self._thread = None
