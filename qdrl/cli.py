@@ -13,7 +13,7 @@ import time
 import traceback
 from pathlib import Path
 
-from qdrl import quiet, specs
+from qdrl import quiet, spec_schema, specs
 from qdrl.config import ConfigError
 
 
@@ -57,12 +57,17 @@ def _writing(out_dir: Path) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from qdrl import checkpoint, experiment, placement, sweeps  # jax and the algorithms: seconds
-
     if args.devices is not None:
         args.set = [*args.set, f"experiment.devices={args.devices}"]
     if args.time_limit is not None:
         args.set = [*args.set, f"experiment.time_limit_s={args.time_limit}"]
+    try:  # keys, types, ranges and names, before jax is imported (qdrl.spec_schema)
+        spec_schema.precheck(specs.load_spec(args.spec, args.set))
+    except ConfigError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
+    from qdrl import checkpoint, experiment, placement, sweeps  # jax and the algorithms: seconds
+
     out_dir = Path(args.out) if args.out else experiment.default_out_dir(args.spec)
     resume = experiment.resume_command(args.spec, args.set, out_dir, args.seeds)
     try:

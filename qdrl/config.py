@@ -317,6 +317,12 @@ def _assemble(cls: type[Any], values: Mapping[tuple[str, ...], Any]) -> dict[str
     return kwargs
 
 
+# Called with (section, {key: declared type}, the keys given, selector) by every `check_keys`
+# and `check_params`: how `qdrl.spec_schema` records what each section of each algorithm takes.
+# `selector` is ("name", value) for a table whose keys the value of another key decides.
+OBSERVERS: list[Callable[[str, Mapping[str, Any], Mapping[str, Any], tuple[str, str] | None, str], None]] = []
+
+
 def check_table(data: Any, section: str) -> Mapping[str, Any]:
     """`data` if it is a TOML table; otherwise ConfigError naming the section."""
     if not isinstance(data, Mapping):
@@ -335,6 +341,8 @@ def check_keys(cls: type[Any], data: Any, section: str) -> dict[str, Any]:
     """
     data = check_table(data, section)
     keys = table_keys(cls)
+    for observe in OBSERVERS:
+        observe(section, {k: tp for k, (_, tp) in keys.items()}, data, None, "")
     unknown = sorted(set(data) - set(keys))
     if unknown:
         raise ConfigError(
@@ -377,12 +385,17 @@ def check_fields(obj: Any, section: str) -> None:
 
 
 def check_params(
-    fn: Callable[..., Any], params: Mapping[str, Any], section: str, owner: str = ""
+    fn: Callable[..., Any],
+    params: Mapping[str, Any],
+    section: str,
+    owner: str = "",
+    selector: tuple[str, str] | None = None,
 ) -> dict[str, Any]:
     """`params` for the keyword parameters of `fn`, each checked against its annotation.
 
     Unknown names and values the annotations refuse raise ConfigError naming
-    `section.<name>` (unknown ones "for <owner>"); `fn` is not called.
+    `section.<name>` (unknown ones "for <owner>"); `fn` is not called. `selector`: the
+    (key, value) of the section that chose `fn` (a task's name), for `OBSERVERS`.
     """
 
     sig = inspect.signature(fn)
@@ -390,6 +403,8 @@ def check_params(
     accepted = sorted(
         k for k, p in sig.parameters.items() if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)
     )
+    for observe in OBSERVERS:
+        observe(section, {k: hints.get(k, Any) for k in accepted}, params, selector, owner)
     out = {}
     for key, value in params.items():
         if key not in accepted:

@@ -38,7 +38,6 @@ from qdrl import (
     loggers,
     placement,
     plotting,
-    specs,
 )
 from qdrl._version import __version__
 from qdrl.algorithms import ALGORITHMS, algorithm_names, recipe
@@ -53,15 +52,14 @@ from qdrl.algorithms.base import (
 )
 from qdrl.config import (
     ConfigError,
-    apply_overrides,
     as_table,
     build,
     check_table,
     did_you_mean,
     dump_toml,
-    load_toml,
 )
 from qdrl.progress import RunProgress
+from qdrl.specs import load_spec
 
 __all__ = [
     "CheckedSpec",
@@ -141,17 +139,6 @@ def resolved_toml(alg: Algorithm, exp: ExperimentConfig, log: LogConfig) -> str:
         sections[k] = [as_table(x) for x in v] if isinstance(v, tuple) else as_table(v)
     sections["log"] = as_table(log)
     return dump_toml(sections)
-
-
-def load_spec(spec_path: str | Path, overrides: list[str] | None = None) -> dict[str, Any]:
-    """The spec at `spec_path` (a path, or a packaged spec's name: `qdrl.specs.resolve`) with
-    `--set` overrides; `experiment.name` defaults to the file's stem."""
-    spec_path = specs.resolve(spec_path)
-    spec = apply_overrides(load_toml(spec_path), overrides or [])
-    exp = spec.setdefault("experiment", {})
-    if isinstance(exp, dict) and not exp.get("name"):
-        exp["name"] = spec_path.stem
-    return spec
 
 
 def check_spec_file(spec_path: str | Path, overrides: list[str] | None = None) -> str:

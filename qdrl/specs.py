@@ -14,8 +14,9 @@ from __future__ import annotations
 import difflib
 import importlib.resources
 from pathlib import Path
+from typing import Any
 
-from qdrl.config import ConfigError
+from qdrl.config import ConfigError, apply_overrides, load_toml
 
 __all__ = ["describe", "resolve", "spec_dir", "spec_names"]
 
@@ -85,3 +86,14 @@ def describe(path: str | Path) -> str:
             if text.endswith(":"):
                 return " ".join(words)
     return " ".join(words)
+
+
+def load_spec(spec_path: str | Path, overrides: list[str] | None = None) -> dict[str, Any]:
+    """The spec at `spec_path` (a path, or a packaged spec's name: `resolve`) with `--set`
+    overrides; `experiment.name` defaults to the file's stem."""
+    spec_path = resolve(spec_path)
+    spec = apply_overrides(load_toml(spec_path), overrides or [])
+    exp = spec.setdefault("experiment", {})
+    if isinstance(exp, dict) and not exp.get("name"):
+        exp["name"] = spec_path.stem
+    return spec

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Annotated, Any
 
-from qdrl.config import ConfigError, check_params, check_table
+from qdrl.config import ConfigError, OneOf, check_params, check_table, coerce
 from qdrl.tasks import TASKS, Task
+
+TaskName = Annotated[str, OneOf(lambda: TASKS)]
 
 __all__ = ["make_task_of", "parse_task"]
 
@@ -24,11 +26,10 @@ def parse_task(data: Any, defaults: Mapping[str, Any] | None = None) -> dict[str
     name = data.get("name")
     if name is None:
         raise ConfigError(f"task.name: missing; expected one of {sorted(TASKS)}")
-    if not isinstance(name, str) or name not in TASKS:
-        raise ConfigError(f"task.name: expected one of {sorted(TASKS)}, got {name!r}")
+    name = coerce(name, TaskName, "task.name")
     builder: Callable[..., Any] = TASKS[name].build
     given = {k: v for k, v in data.items() if k != "name"}
-    kwargs = check_params(builder, given, "task", owner=f"task {name!r}")
+    kwargs = check_params(builder, given, "task", owner=f"task {name!r}", selector=("name", name))
     params = inspect.signature(builder).parameters
     for key, value in (defaults or {}).items():
         if key in params and key not in kwargs:
