@@ -26,6 +26,15 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
 
+def plot(pbt_rows: list[dict[str, float]], me_rows: list[dict[str, float]], task: str, path: str | Path) -> Path:
+    """Draws ME-PBT's and MAP-Elites' QD score (their runs' metric rows) against env steps and writes
+    it to `path`."""
+    from qdrl.plotting import plot_comparison
+
+    return plot_comparison({"ME-PBT (SAC)": pbt_rows, "MAP-Elites": me_rows}, "qd_score", "env_steps", path,
+                           title=f"{task}: QD score vs env steps")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--task", default="halfcheetah_uni")
@@ -33,7 +42,6 @@ def main() -> None:
     args = p.parse_args()
 
     from qdrl.experiment import run_spec
-    from qdrl.plotting import plot_comparison
 
     out = Path(args.out)
     me_pbt_spec = ROOT / "agents" / f"me_pbt_sac_{args.task}_cpu.toml"
@@ -67,9 +75,7 @@ def main() -> None:
 
     record["machine"] = machine()
     (HERE / "results" / f"me_pbt_vs_map_elites_{args.task}.json").write_text(json.dumps(record, indent=2) + "\n")
-    plot_comparison({"ME-PBT (SAC)": pbt_rows, "MAP-Elites": me_rows}, "qd_score", "env_steps",
-                    ROOT / "docs" / f"me_pbt_vs_map_elites_{args.task}.png",
-                    title=f"{args.task}: QD score vs env steps")
+    plot(pbt_rows, me_rows, args.task, ROOT / "docs" / f"me_pbt_vs_map_elites_{args.task}.png")
     print(json.dumps(record, indent=2))
 
 

@@ -92,6 +92,22 @@ def run_map_elites(run_: Any, seed: int) -> tuple[np.ndarray, float]:
     return objectives, run_s
 
 
+def plot_fronts(rows: list[dict[str, Any]], seed: int, path: str | Path) -> Path:
+    """Draws both global fronts of `seed`'s row (its last in `rows`, this script's JSON lines) with
+    the reference point and writes it to `path`."""
+    from qdrl import plotting
+
+    row = [r for r in rows if r["seed"] == seed][-1]
+    return plotting.plot_pareto_front(
+        {"MOME": np.asarray(row["mome"]["front"]),
+         "MAP-Elites (forward reward)": np.asarray(row["map_elites_forward"]["front"])},
+        path,
+        reference=tuple(row["reference_point"]),
+        title="halfcheetah_multi, 100-step episodes, 9,664 evaluations",
+        objective_names=["forward reward", "energy objective (-0.1 sum |a|^2)"],
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=1)
@@ -99,7 +115,6 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--set", action="append", default=[], help="spec overrides (smoke tests)")
     args = parser.parse_args()
-    from qdrl import plotting
     from qdrl.experiment import build_run, load_spec, run
 
     for seed in range(args.first_seed, args.first_seed + args.seeds):
@@ -126,13 +141,7 @@ def main() -> None:
             "map_elites_forward": {**_summary(me_front, reference), "num_elites": len(me_points),
                                    "run_s": me_run_s, "wall_s": me_wall},
         }
-        plotting.plot_pareto_front(
-            {"MOME": mome_front, "MAP-Elites (forward reward)": me_front},
-            args.out.with_name(f"{args.out.stem}_seed{seed}.png"),
-            reference=reference,
-            title="halfcheetah_multi, 100-step episodes, 9,664 evaluations",
-            objective_names=["forward reward", "energy objective (-0.1 sum |a|^2)"],
-        )
+        plot_fronts([row], seed, args.out.with_name(f"{args.out.stem}_seed{seed}.png"))
         with args.out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         print(json.dumps({k: v for k, v in row.items()}), flush=True)

@@ -16,6 +16,7 @@ import argparse
 import csv
 import json
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 
@@ -25,6 +26,25 @@ def _rows(path: Path) -> list[dict[str, float]]:
         return [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(f)]
 
 
+def plot(record: dict[str, Any], path: str | Path) -> Path:
+    """Draws the best and median members' evaluation returns of both runs in `record` (a results
+    file of this script) against each member's env steps and writes it to `path`."""
+    from qdrl.plotting import plot_comparison
+
+    def curve(key: str) -> list[dict[str, float]]:
+        return [{"member_env_steps": s, "eval_return": v}
+                for s, v in zip(record["member_env_steps"], record[key], strict=True)]
+
+    curves = {
+        "PBT: best member": curve("pbt_best"),
+        "PBT: median member": curve("pbt_median"),
+        "fixed hyperparameters: best": curve("fixed_best"),
+        "fixed hyperparameters: median": curve("fixed_median"),
+    }
+    return plot_comparison(curves, "eval_return", "member_env_steps", path,
+                           title="SAC on halfcheetah: PBT vs fixed random hyperparameters")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--spec", default="agents/sac_pbt_halfcheetah_cpu.toml")
@@ -32,7 +52,6 @@ def main() -> None:
     args = p.parse_args()
 
     from qdrl.experiment import run_spec
-    from qdrl.plotting import plot_comparison
 
     stem = Path(args.spec).stem
     out = Path(args.out)
@@ -71,14 +90,7 @@ def main() -> None:
 
     record["machine"] = machine()
     (HERE / "results" / f"pbt_vs_fixed_{stem}.json").write_text(json.dumps(record, indent=2) + "\n")
-    curves = {
-        "PBT: best member": [{"member_env_steps": r["member_env_steps"], "eval_return": r["eval_return"]} for r in rows["pbt"]],
-        "PBT: median member": [{"member_env_steps": r["member_env_steps"], "eval_return": r["eval_return_median"]} for r in rows["pbt"]],
-        "fixed hyperparameters: best": [{"member_env_steps": r["member_env_steps"], "eval_return": r["eval_return"]} for r in rows["fixed"]],
-        "fixed hyperparameters: median": [{"member_env_steps": r["member_env_steps"], "eval_return": r["eval_return_median"]} for r in rows["fixed"]],
-    }
-    plot_comparison(curves, "eval_return", "member_env_steps", HERE.parent / "docs" / f"pbt_vs_fixed_{stem}.png",
-                    title="SAC on halfcheetah: PBT vs fixed random hyperparameters")
+    plot(record, HERE.parent / "docs" / f"pbt_vs_fixed_{stem}.png")
     print(json.dumps(record["final"], indent=2))
 
 

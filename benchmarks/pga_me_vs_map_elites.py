@@ -98,6 +98,22 @@ def comparison_title(names: list[str], task: str) -> str:
     return f"{', '.join(names)}\non {task} (CPU specs)"
 
 
+# The x keys of the plots, and the file-name suffix of each: `<results stem>_<task>_<suffix>.png`.
+PLOT_X_KEYS = {"evaluations": "evaluations", "wall_s": "wall_time"}
+
+
+def plot_task(results: dict[str, Any], task: str, x_key: str, path: str | Path) -> Path:
+    """Draws the QD score of every run of `task` in `results` (a results file of this script)
+    against `x_key` (evaluations or wall_s), one line per run, and writes it to `path`."""
+    from qdrl import plotting
+
+    runs = results["runs"]
+    curves = {f"{r['algorithm']} seed {r['seed']}": r["rows"] for r in runs if r["task"] == task}
+    return plotting.plot_comparison(
+        curves, "qd_score", x_key, path, title=comparison_title(per_task_names(runs, task), task),
+    )
+
+
 def at_budget(run: dict[str, Any], evaluations: float) -> dict[str, Any]:
     """A run's figures after `evaluations` (its last logged row within it; its summary if it ended there).
 
@@ -135,7 +151,6 @@ def main() -> None:
     p.add_argument("--plots", default=str(ROOT / "docs"))
     args = p.parse_args()
 
-    from qdrl import plotting
     from qdrl.bench import machine
 
     out = Path(args.out)
@@ -198,14 +213,8 @@ def main() -> None:
                     per_task[algorithm]["qd_score"] / per_task["map_elites"]["qd_score"], 3
                 )
         summary[task] = per_task
-        for x_key, stem in (("evaluations", "evaluations"), ("wall_s", "wall_time")):
-            curves = {
-                f"{r['algorithm']} seed {r['seed']}": r["rows"] for r in runs if r["task"] == task
-            }
-            plotting.plot_comparison(
-                curves, "qd_score", x_key, Path(args.plots) / f"{Path(args.out).stem}_{task}_{stem}.png",
-                title=comparison_title(per_task_names(runs, task), task),
-            )
+        for x_key, suffix in PLOT_X_KEYS.items():
+            plot_task({"runs": runs}, task, x_key, Path(args.plots) / f"{Path(args.out).stem}_{task}_{suffix}.png")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": machine(), "summary": summary, "runs": runs}, indent=2) + "\n")
     print(json.dumps(summary, indent=2))

@@ -81,6 +81,21 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return summary
 
 
+def plot(results: dict[str, Any], qdrl_results: dict[str, Any] | None, path: str | Path) -> Path:
+    """Draws QDax's mean curves (`results`, a results file of this script) beside the mean curves of
+    qdrl's halfcheetah_uni runs in `qdrl_results` (a results file of `pga_me_vs_map_elites.py`; None:
+    QDax's alone) and writes it to `path`."""
+    from qdrl import plotting
+
+    curves = mean_curves("QDax", results["runs"])
+    if qdrl_results is not None:
+        curves |= mean_curves("qdrl", [r for r in qdrl_results["runs"] if r["task"] == "halfcheetah_uni"])
+    return plotting.plot_comparison(
+        curves, "qd_score", "evaluations", path,
+        title="PGA-ME and MAP-Elites, QDax 0.5.0 and qdrl\n(halfcheetah_uni, CPU specs, means over seeds)",
+    )
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--qdax-python", required=True)
@@ -97,7 +112,6 @@ def main() -> None:
         p.error(f"expected --seeds >= 0, --iterations >= 1, --log-every >= 1; got "
                 f"{args.seeds}, {args.iterations}, {args.log_every}")
 
-    from qdrl import plotting
     from qdrl.bench import machine
 
     out = Path(args.out)
@@ -123,16 +137,9 @@ def main() -> None:
             write()
             print(json.dumps({k: v for k, v in rec.items() if k != "rows"}), file=sys.stderr)
     summary = write()
-    curves = mean_curves("QDax", runs)
     qdrl_file = Path(args.qdrl_runs)
-    if qdrl_file.exists():
-        qdrl_runs = json.loads(qdrl_file.read_text())["runs"]
-        curves |= mean_curves("qdrl", [r for r in qdrl_runs if r["task"] == "halfcheetah_uni"])
-    plotting.plot_comparison(
-        curves, "qd_score", "evaluations",
-        Path(args.plots) / f"{out.stem}_halfcheetah_uni_evaluations.png",
-        title="PGA-ME and MAP-Elites, QDax 0.5.0 and qdrl\n(halfcheetah_uni, CPU specs, means over seeds)",
-    )
+    qdrl_results = json.loads(qdrl_file.read_text()) if qdrl_file.exists() else None
+    plot({"runs": runs}, qdrl_results, Path(args.plots) / f"{out.stem}_halfcheetah_uni_evaluations.png")
     print(json.dumps(summary, indent=2))
 
 
