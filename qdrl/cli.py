@@ -239,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p_render = sub.add_parser(
         "render",
-        help="replay an elite (QD runs) or a skill (skill-discovery runs): HTML viewer (brax) or PNG of the path (mazes)",
+        help="replay an elite (QD runs) or a skill (skill-discovery runs): HTML viewer or GIF (brax) or PNG of the path (mazes)",
     )
     p_render.add_argument("dir", help="a run directory written by `qdrl run`")
     p_render.add_argument("--cell", type=int, default=None, help="QD runs: the elite's cell (default: the best)")
@@ -249,7 +249,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     p_render.add_argument(
         "--out", default=None,
-        help="output file, .html or .png (default: DIR/plots/replay_cell<N>|replay_skill<Z>|replay_skills.html|png)",
+        help="output file: .html, .gif (brax tasks: a GIF video, needs a headless EGL context) or .png (mazes) "
+        "(default: DIR/plots/replay_cell<N>|replay_skill<Z>|replay_skills.html|png)",
     )
     p_render.add_argument(
         "--cdn", action="store_true",

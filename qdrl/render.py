@@ -1,4 +1,4 @@
-"""Replays of a run's elites or skills: an HTML viewer for brax tasks, a PNG of the path in the mazes.
+"""Replays of a run's elites or skills: an HTML viewer or a GIF for brax tasks, a PNG of the path in the mazes.
 
 `render(run, cell, out)` rolls a QD run's elite out through the task's own scoring
 (`LoadedRun.rollout`, the stored return bit for bit); `render(run, skill=z)` plays
@@ -9,18 +9,24 @@ skill z of a skill-discovery run's agent as the run's last evaluation played it
   ant_trap, the walls) at every step. By default one self-contained page that
   fetches nothing (`qdrl.viewer`), with `offline=False` brax's own viewer
   (`brax.io.html`), whose page loads its scripts from CDNs;
+- for brax tasks, when `out` ends with `.gif`, a GIF video of the same episode
+  (`qdrl.viewer.write_video`: MuJoCo's offscreen renderer on a headless EGL
+  context, in real time up to 50 frames a second; RunError where no EGL context
+  can be made);
 - for point_maze, ant_maze and ant_trap, a PNG of the path (point position or
   torso x-y at every step) over the walls, with the start and the goal.
 
-ant_maze and ant_trap write the PNG by default and the HTML replay when `out`
-ends with `.html`. Without a skill, a skill run's PNG draws every skill's path (one
-colour per skill, a legend of skill ids) and its HTML replay plays skill 0. The
-rollouts compile inside jax's persistent compilation cache (`LoadedRun.compiling`):
-a second render of the run, in a new process, loads its programs from there.
+ant_maze and ant_trap write the PNG by default, the HTML replay when `out` ends
+with `.html` and the GIF when it ends with `.gif`. Without a skill, a skill run's PNG
+draws every skill's path (one colour per skill, a legend of skill ids) and its HTML
+or GIF replay plays skill 0. The rollouts compile inside jax's persistent
+compilation cache (`LoadedRun.compiling`): a second render of the run, in a new
+process, loads its programs from there.
 """
 
 from __future__ import annotations
 
+import math
 import types
 from collections.abc import Mapping
 from pathlib import Path
@@ -39,7 +45,7 @@ from qdrl.plotting import Wall, draw_walls, env_walls
 from qdrl.plotting.skills import skill_colours
 from qdrl.runs import LoadedRun, RunError, Trajectory
 
-__all__ = ["render", "write_html", "write_path_png", "write_paths_png"]
+__all__ = ["render", "write_gif", "write_html", "write_path_png", "write_paths_png"]
 
 
 
@@ -63,7 +69,7 @@ def _kind(run: LoadedRun) -> tuple[str, tuple[str, ...]]:
     if isinstance(env, PointMazeEnv):
         return "point_maze", (".png",)
     if isinstance(env, BraxEnv):
-        return "brax", ((".png", ".html") if env.name in WALLED_ENVS else (".html",))
+        return "brax", ((".png", ".html", ".gif") if env.name in WALLED_ENVS else (".html", ".gif"))
     raise RunError(
         f"render: expected a run of a brax task or point_maze, got task {run.task_name!r}"
     )
@@ -88,13 +94,14 @@ def render(
     run's `skill`, and says what it wrote.
 
     `out` defaults to `DIR/plots/replay_cell<N>.html` (brax) or `.png` (mazes), for skills
-    `replay_skill<Z>.html|png`; its suffix picks the format where a task has two.
-    Without `skill`, a skill run's PNG draws every skill's path (`replay_skills.png`)
-    and its HTML replay plays skill 0. Returns {"out", "cell", "fitness", "return",
-    "length"} for an elite, {"out", "skill", "return", "length"} for one skill, and
-    {"out", "skills", "returns", "lengths"} for every skill. RunError for `skill` on a
-    QD run, `cell` on a skill run, or a run that is neither. An HTML replay is the
-    self-contained page (`offline`, the default) or brax's CDN page (`write_html`).
+    `replay_skill<Z>.html|png`; its suffix picks the format: `.html` or `.gif` (brax tasks),
+    `.png` (mazes). Without `skill`, a skill run's PNG draws every skill's path
+    (`replay_skills.png`) and its HTML or GIF replay plays skill 0. Returns {"out",
+    "cell", "fitness", "return", "length"} for an elite, {"out", "skill", "return",
+    "length"} for one skill, and {"out", "skills", "returns", "lengths"} for every
+    skill. RunError for `skill` on a QD run, `cell` on a skill run, or a run that is
+    neither. An HTML replay is the self-contained page (`offline`, the default) or
+    brax's CDN page (`write_html`); a GIF needs a headless EGL context (`write_gif`).
     """
     kind, suffixes = _kind(run)
     with run.compiling():
@@ -123,8 +130,8 @@ def _render_elite(
     episode = run.rollout(elite)
     env = run.qd_task.env
     title = f"{run.algorithm} on {run.task_name}, cell {elite.cell}: return {episode.return_:.2f}"
-    if path.suffix == ".html":
-        write_html(env.brax_env.sys, episode, path, offline)
+    if path.suffix in (".html", ".gif"):
+        _write_replay(env.brax_env, episode, path, offline)
     else:
         _write_maze_png(
             {"path": episode}, path, env, kind, run.qd_task.descriptor_low, run.qd_task.descriptor_high, title
@@ -146,8 +153,8 @@ def _render_skills(
         episode = run.rollout(skill=skill)  # RunError for a skill given
         env = run.require_agent("render").env
         title = f"{run.algorithm} on {run.task_name}: return {episode.return_:.2f}"
-        if path.suffix == ".html":
-            write_html(env.brax_env.sys, episode, path, offline)
+        if path.suffix in (".html", ".gif"):
+            _write_replay(env.brax_env, episode, path, offline)
         else:
             _write_maze_png({"agent": episode}, path, env, kind, *_bounds(run), title)
         return {"out": str(path), "return": episode.return_, "length": episode.length}
@@ -157,8 +164,8 @@ def _render_skills(
     episodes = {z: run.rollout(skill=z) for z in shown}  # one evaluation plays them all
     env = run.require_agent("render").env
     what = f"{run.algorithm} on {run.task_name}"
-    if path.suffix == ".html":
-        write_html(env.brax_env.sys, episodes[skill or 0], path, offline)
+    if path.suffix in (".html", ".gif"):
+        _write_replay(env.brax_env, episodes[skill or 0], path, offline)
     else:
         returns = [e.return_ for e in episodes.values()]
         title = (
@@ -196,6 +203,37 @@ def _write_maze_png(
     )
 
 
+def _write_replay(brax_env: Any, episode: Trajectory, path: Path, offline: bool) -> Path:
+    """`episode`'s HTML replay or GIF, by `path`'s suffix."""
+    if path.suffix == ".gif":
+        return write_gif(brax_env.sys, episode, path, brax_env.dt)
+    return write_html(brax_env.sys, episode, path, offline)
+
+
+def _poses(episode: Trajectory) -> Any:
+    """The episode's link poses (`state.x`, (T, ...)) up to its end, as numpy arrays."""
+    if episode.states is None:
+        raise RunError("render: expected an episode rolled out with brax link poses (record)")
+    return jax.tree.map(lambda a: np.asarray(a)[: max(episode.length, 1)], episode.states)
+
+
+def write_gif(sys: Any, episode: Trajectory, path: Path, dt: float) -> Path:
+    """A GIF video of `episode` (its link poses) up to its end, `dt` seconds a step (the env's `dt`).
+
+    Real time up to 50 frames a second (GIF's fastest), every k-th step beyond it.
+    RunError where MuJoCo can make no headless EGL context (`qdrl.viewer.write_video`).
+    """
+    from qdrl import viewer
+
+    poses = _poses(episode)
+    dt = float(dt)
+    stride = max(1, math.ceil(round(0.02 / dt, 6)))  # rounded: 0.02 / 0.01 is 2, not 2.0000000004
+    try:
+        return viewer.write_video(sys, poses.pos, poses.rot, path, fps=1.0 / (dt * stride), stride=stride)
+    except RuntimeError as e:  # no EGL: a one-line error, as for any other render
+        raise RunError(f"render: {e}") from e
+
+
 def write_html(sys: Any, episode: Trajectory, path: Path, offline: bool = True) -> Path:
     """An HTML replay of `episode` (its `states`: link poses, (T, ...)) up to its end.
 
@@ -204,10 +242,8 @@ def write_html(sys: Any, episode: Trajectory, path: Path, offline: bool = True) 
     """
     from qdrl import viewer
 
-    if episode.states is None:
-        raise RunError("render: expected an episode rolled out with brax link poses (record)")
     # Both viewers read only `state.x` (link positions and rotations) of each state.
-    poses = jax.tree.map(lambda a: np.asarray(a)[: max(episode.length, 1)], episode.states)
+    poses = _poses(episode)
     path.parent.mkdir(parents=True, exist_ok=True)
     if offline:
         path.write_text(viewer.replay_html(sys, poses.pos, poses.rot))

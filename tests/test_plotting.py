@@ -170,6 +170,89 @@ def test_seeds_are_drawn_as_their_mean_and_a_band(tmp_path: Path) -> None:
     assert imread(path).shape[1] > 2 * imread(path).shape[0]  # two panels side by side
 
 
+def sac_rows(n: int = 6) -> list[dict]:
+    """An RL run's metrics.csv rows: counters, the evaluation, the archive's QD metrics, losses."""
+    return [
+        {
+            "log_point": i, "env_steps": 200 * (i + 1), "grad_steps": 50 * i, "eval_return": -30.0 + i,
+            "eval_return_std": 0.5 * (i + 1), "actor_loss": 1.0 / (i + 1), "alpha": 1.0 - 0.1 * i,
+            "coverage": 0.01 * i, "critic_loss": 3.0 - 0.4 * i, "qd_score": 10.0 * i,
+            "train_return": float("nan") if i < 2 else -31.0 + i, "wall_s": 0.5 * i,
+        }
+        for i in range(n)
+    ]
+
+
+def _titles(fig: object) -> list[str]:
+    return [a.get_title() for a in fig.axes if a.get_label() != "<colorbar>"]  # type: ignore[attr-defined]
+
+
+def test_the_rl_summary_draws_the_return_first_and_largest_then_the_archive_and_every_metric(
+    tmp_path: Path,
+) -> None:
+    from matplotlib.collections import PolyCollection, QuadMesh
+    from matplotlib.figure import Figure
+
+    rows = sac_rows()
+    fig = Figure()
+    archive = _grid_rep(np.where(np.arange(16) % 5 == 0, np.arange(16.0), -np.inf))
+    assert plotting.plot_rl_summary(rows, archive, None, (0.0, 0.0), (1.0, 1.0), ["x", "y"], fig=fig) is fig
+    # the archive's curves, then the losses, then the rest in metrics.csv's order; no counters
+    assert _titles(fig) == [
+        "evaluation return", "qd score", "coverage", "actor loss", "critic loss", "alpha", "train return",
+        "passive archive",
+    ]
+    main, *small, heatmap = (a for a in fig.axes if a.get_label() != "<colorbar>")
+    assert main.get_xlabel() == "environment steps"
+    np.testing.assert_allclose(main.get_lines()[0].get_xdata(), [200.0 * (i + 1) for i in range(6)])
+    np.testing.assert_allclose(main.get_lines()[0].get_ydata(), [-30.0 + i for i in range(6)])
+    (band,) = [c for c in main.collections if isinstance(c, PolyCollection)]  # return ± std
+    ys = band.get_paths()[0].vertices[:, 1]
+    assert math.isclose(ys.min(), -30.5) and math.isclose(ys.max(), -25.0 + 3.0)
+    area = [a.get_position().width * a.get_position().height for a in (main, *small)]
+    assert area[0] > 3 * max(area[1:])
+    np.testing.assert_allclose(small[-1].get_lines()[0].get_ydata(), [-29.0, -28.0, -27.0, -26.0])  # NaN skipped
+    (mesh,) = [c for c in heatmap.collections if isinstance(c, QuadMesh)]
+    assert int(np.ma.masked_invalid(mesh.get_array()).count()) == 4  # the filled cells
+    assert (heatmap.get_xlabel(), heatmap.get_ylabel()) == ("x", "y")
+    path = plotting.plot_rl_summary(rows, archive, tmp_path / "plots" / "summary.png", (0.0, 0.0), (1.0, 1.0))
+    assert path == tmp_path / "plots" / "summary.png"
+    assert_png(path)
+
+
+def test_the_rl_summary_of_a_loaded_run_a_dataframe_and_a_population() -> None:
+    import types
+
+    import pandas as pd
+    from matplotlib.figure import Figure
+
+    archive = _grid_rep(np.arange(16.0))
+    run = types.SimpleNamespace(
+        metrics=pd.DataFrame(sac_rows()), repertoire=archive, algorithm="td3", task_name="point",
+        summary={"descriptor_low": [0.0, 0.0], "descriptor_high": [1.0, 1.0], "descriptor_names": ["a", "b"]},
+    )
+    new = plotting.plot_rl_summary(run)
+    assert new._suptitle.get_text() == "td3 on point" and _titles(new)[-1] == "passive archive"
+    assert new.axes[-2].get_xlabel() == "a"  # the run's descriptor names
+    # a DataFrame without an archive: the curves only
+    assert "passive archive" not in _titles(plotting.plot_rl_summary(run.metrics))
+    # PBT: the best member's return beside the population's median and mean; members on one panel
+    rows = [
+        {**row, "eval_return_m0": row["eval_return"], "eval_return_m1": row["eval_return"] - 2.0,
+         "eval_return_median": row["eval_return"] - 1.0, "eval_return_mean": row["eval_return"] - 1.0,
+         "member_env_steps": row["env_steps"] // 2}
+        for row in sac_rows()
+    ]
+    fig = plotting.plot_rl_summary(rows, archive, low=0.0, high=1.0, fig=Figure())
+    assert _titles(fig)[:4] == ["evaluation return", "qd score", "coverage", "members' eval return"]
+    assert "member env steps" not in _titles(fig)  # a counter
+    main, _, _, members = fig.axes[:4]
+    assert main.get_legend_handles_labels()[1] == [
+        "best member", "± std over episodes", "population median", "population mean"
+    ]
+    assert [line.get_label() for line in members.get_lines()] == ["m0", "m1"]
+
+
 def test_heatmap_axes_carry_the_descriptor_names(tmp_path: Path) -> None:
     import types
 
@@ -394,6 +477,10 @@ MULTI_PANEL = {
             None, (-1.0, -1.0), (1.0, 1.0), archive=_grid_rep(np.arange(16.0)), fig=fig,
         ),
         3,  # trajectories, archive and its colour bar
+    ),
+    "plot_rl_summary": (
+        lambda fig: plotting.plot_rl_summary(run_rows(10), _grid_rep(np.arange(16.0)), None, 0.0, 1.0, fig=fig),
+        4,  # the return, actor loss, the archive and its colour bar
     ),
 }
 

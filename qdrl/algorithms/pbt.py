@@ -145,7 +145,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         return row
 
     def plot(state: PBTState, rows: list[Row], out_dir: Path) -> None:
-        plot_archive(state.archive, archive_cfg, labels, out_dir, title)
+        plot_archive(state.archive, archive_cfg, labels, out_dir, title, rows)
         members = {
             f"member {i}": [
                 {"member_env_steps": r["member_env_steps"], "eval_return": r[f"eval_return_m{i}"]} for r in rows

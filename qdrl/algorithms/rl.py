@@ -142,13 +142,20 @@ def write_archive(archive: CellRepertoire, out_dir: Path) -> None:
 
 
 def plot_archive(
-    archive: CellRepertoire, config: ArchiveConfig, labels: tuple[str, ...], out_dir: Path, title: str
+    archive: CellRepertoire, config: ArchiveConfig, labels: tuple[str, ...], out_dir: Path, title: str,
+    rows: list[Row] | None = None,
 ) -> None:
-    """The passive archive drawn into plots/archive.png."""
+    """The passive archive drawn into plots/archive.png; with the run's `rows`, also the
+    one-figure summary plots/summary.png (evaluation return, archive, losses, every metric)."""
+    archive = jax.device_get(archive)
     plotting.plot_repertoire(
-        jax.device_get(archive), out_dir / "plots" / "archive.png", config.low, config.high,
+        archive, out_dir / "plots" / "archive.png", config.low, config.high,
         title=f"{title}: passive archive ({config.descriptor} descriptor)", labels=labels,
     )
+    if rows:
+        plotting.plot_rl_summary(
+            rows, archive, out_dir / "plots" / "summary.png", config.low, config.high, labels, title
+        )
 
 
 def rl_log_row(counters: Row, metrics: Any) -> Row:
@@ -235,7 +242,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         chunk=chunk,
         log_row=log_row,
         finish=finish,
-        plot=lambda state, rows, out_dir: plot_archive(state.archive, archive_cfg, labels, out_dir, title),
+        plot=lambda state, rows, out_dir: plot_archive(state.archive, archive_cfg, labels, out_dir, title, rows),
         placement=ctx.placement,
         state_axes=RLState(STATE_AXES, None),  # type: ignore[arg-type]
         descriptor_space=DescriptorSpace(archive_cfg.low, archive_cfg.high, labels),

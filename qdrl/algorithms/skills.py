@@ -292,8 +292,7 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         return ep, episode_descriptors(ep, archive_cfg.descriptor, archive_cfg.low, archive_cfg.high)
 
     def plot(state: RLState, rows: list[Row], out_dir: Path) -> None:
-        del rows
-        plot_archive(state.archive, archive_cfg, labels, out_dir, title)
+        plot_archive(state.archive, archive_cfg, labels, out_dir, title, rows)
         shown = dict(skill_log.trajectories)
         last = int(state.train.env_steps) // train_cfg.eval_every - 1
         if last not in shown:  # a resumed run with no chunk left: its last evaluation once more

@@ -57,6 +57,7 @@ _WHERE = {
     "elites_of": "sources",
     "plot_parallel_axes": "summary",
     "plot_qd_summary": "summary",
+    "plot_rl_summary": "summary",
 }
 
 if TYPE_CHECKING:
@@ -73,7 +74,7 @@ if TYPE_CHECKING:
     from qdrl.plotting.repertoires import plot_repertoire, plot_repertoires
     from qdrl.plotting.skills import Wall, draw_walls, env_walls, plot_skills
     from qdrl.plotting.sources import Elites, elites_of
-    from qdrl.plotting.summary import plot_parallel_axes, plot_qd_summary
+    from qdrl.plotting.summary import plot_parallel_axes, plot_qd_summary, plot_rl_summary
 
 
 def __getattr__(name: str) -> Any:
@@ -107,5 +108,6 @@ __all__ = [
     "plot_qd_summary",
     "plot_repertoire",
     "plot_repertoires",
+    "plot_rl_summary",
     "plot_skills",
 ]
