@@ -53,9 +53,8 @@ def _raw_section(spec: Mapping[str, Any], section: str) -> Any:
 
 
 def _variants_of(spec: Mapping[str, Any], tasks: list[str], kinds: list[str]) -> list[dict[str, Any]]:
-    """The spec, then the spec with each task name, and each emitter kind, in turn."""
-    out = [dict(spec)]
-    out += [{**spec, "task": {"name": t}} for t in tasks]
+    """The spec with each task name, and each emitter kind, in turn."""
+    out = [{**spec, "task": {"name": t}} for t in tasks]
     if "emitter" in spec or "emitters" not in spec:
         out += [{**spec, "emitter": {}}] + [{**spec, "emitter": {"kind": k}} for k in kinds]
     if isinstance(spec.get("emitters"), list) and spec["emitters"]:
@@ -79,16 +78,22 @@ def record() -> dict[str, Any]:
         known: set[tuple[str, ...]] = set()
         OBSERVERS.append(recorder)
         try:
-            for base in bases:
-                for variant in _variants_of(base, sorted(TASKS), sorted(EMITTER_KINDS)):
-                    start = len(recorder.calls)
-                    with contextlib.suppress(ConfigError):
-                        known.add(tuple(sorted({*COMMON, *check_spec(variant).sections})))
-                    # the default of a selector: the value its section took when the spec gave none
-                    recorder.calls[start:] = [
-                        (s, t, sel, o, {**g, "__raw__": _raw_section(variant, s)})
-                        for s, t, sel, o, g in recorder.calls[start:]
-                    ]
+            # every packaged spec as it is; each task name and emitter kind on the first one, and on
+            # the first with a pool of [[emitters]] (a table is its config class's: the other specs
+            # of the algorithm give the same)
+            pool = next((b for b in bases if "emitters" in b), None)
+            variants = [*bases, *_variants_of(bases[0], sorted(TASKS), sorted(EMITTER_KINDS))]
+            if pool is not None and pool is not bases[0]:
+                variants += _variants_of(pool, [], sorted(EMITTER_KINDS))
+            for variant in variants:
+                start = len(recorder.calls)
+                with contextlib.suppress(ConfigError):
+                    known.add(tuple(sorted({*COMMON, *check_spec(variant).sections})))
+                # the default of a selector: the value its section took when the spec gave none
+                recorder.calls[start:] = [
+                    (s, t, sel, o, {**g, "__raw__": _raw_section(variant, s)})
+                    for s, t, sel, o, g in recorder.calls[start:]
+                ]
         finally:
             OBSERVERS.remove(recorder)
         sections = _sections(recorder.calls)
