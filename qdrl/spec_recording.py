@@ -81,10 +81,10 @@ def record() -> dict[str, Any]:
             # every packaged spec as it is; each task name and emitter kind on the first one, and on
             # the first with a pool of [[emitters]] (a table is its config class's: the other specs
             # of the algorithm give the same)
-            pool = next((b for b in bases if "emitters" in b), None)
+            with_pool = next((b for b in bases if "emitters" in b), None)
             variants = [*bases, *_variants_of(bases[0], sorted(TASKS), sorted(EMITTER_KINDS))]
-            if pool is not None and pool is not bases[0]:
-                variants += _variants_of(pool, [], sorted(EMITTER_KINDS))
+            if with_pool is not None and with_pool is not bases[0]:
+                variants += _variants_of(with_pool, [], sorted(EMITTER_KINDS))
             for variant in variants:
                 start = len(recorder.calls)
                 with contextlib.suppress(ConfigError):
