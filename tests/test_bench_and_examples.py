@@ -97,6 +97,7 @@ def test_bench_map_elites_quick(
     assert 0 < hlo["cpu_optimized"]["kernels"] < hlo["cpu_optimized"]["instructions"]
 
 
+@pytest.mark.slow  # a SAC run through `qdrl bench rl`: compiles an agent of its own
 def test_bench_rl_quick(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "rl", "--quick", "--config", "td3"]) == 0
     (result,) = json.loads(capsys.readouterr().out)["results"]
@@ -129,6 +130,7 @@ def test_example_runs(script: str, monkeypatch: pytest.MonkeyPatch, capsys: pyte
         assert float(last.split("eval return")[1]) > -10.0
 
 
+@pytest.mark.slow  # rollouts at two batches and a MAP-Elites run of their own
 def test_bench_tasks_quick(capsys: pytest.CaptureFixture[str], timed_runs: list[tuple[Start, Any]]) -> None:
     assert main(["bench", "tasks", "--quick", "--config", "point_maze"]) == 0
     (result,) = json.loads(capsys.readouterr().out)["results"]
@@ -149,6 +151,7 @@ def test_bench_tasks_quick(capsys: pytest.CaptureFixture[str], timed_runs: list[
     assert result["qd_score"] > start.qd_score
 
 
+@pytest.mark.slow
 def test_bench_policy_map_elites_quick(
     capsys: pytest.CaptureFixture[str], timed_runs: list[tuple[Start, Any]]
 ) -> None:
@@ -315,7 +318,12 @@ def test_kernel_summary_finds_the_scanned_program_and_counts_its_kernels_per_ste
 
 @pytest.mark.parametrize(
     # The brax example compiles halfcheetah's physics in three programs: slow.
-    "script", ["map_elites_function.py", "diayn_skills.py", pytest.param("pga_me_brax.py", marks=pytest.mark.slow)]
+    # DIAYN's example trains the agent tests/test_skills_run.py trains: slow too.
+    "script", [
+        "map_elites_function.py",
+        pytest.param("diayn_skills.py", marks=pytest.mark.slow),
+        pytest.param("pga_me_brax.py", marks=pytest.mark.slow),
+    ]
 )
 def test_example_runs_at_its_small_size(
     script: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]

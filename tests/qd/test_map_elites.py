@@ -59,7 +59,8 @@ def grid_loop() -> Loop:
     return _loop("grid")
 
 
-@pytest.mark.parametrize("kind", ["grid", "cvt"])
+# CVT MAP-Elites learns through the same loop (tests/test_qd_run.py runs it end to end): -m slow.
+@pytest.mark.parametrize("kind", ["grid", pytest.param("cvt", marks=pytest.mark.slow)])
 def test_map_elites_improves_qd_score_and_coverage(kind: str, request: pytest.FixtureRequest) -> None:
     loop = request.getfixturevalue("grid_loop") if kind == "grid" else _loop(kind)
     state = _start(loop.me)

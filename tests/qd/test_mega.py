@@ -73,8 +73,9 @@ def test_omg_mega_improves_the_qd_score() -> None:
 @pytest.mark.parametrize(
     ("optimizer", "lr", "ranker", "restart", "alpha"),
     [
-        ("gradient_ascent", 1.0, "2imp", "no_improvement", None),  # CMA-MEGA
-        ("adam", 0.01, "2imp", "no_improvement", None),  # CMA-MEGA (Adam)
+        # CMA-MEGA and its Adam variant learn through the same step: -m slow
+        pytest.param("gradient_ascent", 1.0, "2imp", "no_improvement", None, marks=pytest.mark.slow),
+        pytest.param("adam", 0.01, "2imp", "no_improvement", None, marks=pytest.mark.slow),
         ("gradient_ascent", 1.0, "imp", "basic", 0.01),  # CMA-MAEGA
     ],
 )

@@ -822,7 +822,7 @@ def test_cvt_search_is_chosen_per_backend_when_lowered() -> None:
     assert " conditional(" in lowered(rep3, "cpu")
 
 
-@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("dim", [pytest.param(1, marks=pytest.mark.slow), 2, pytest.param(3, marks=pytest.mark.slow)])
 def test_cvt_lookup_is_exact_far_outside_the_box_and_with_centroids_outside(dim: int) -> None:
     """The lookup grid's search against exact float64 distances: points far outside the box,
     at its corners and on ties; centroids outside the box."""
