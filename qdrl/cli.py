@@ -61,8 +61,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         args.set = [*args.set, f"experiment.devices={args.devices}"]
     if args.time_limit is not None:
         args.set = [*args.set, f"experiment.time_limit_s={args.time_limit}"]
-    try:  # keys, types, ranges and names, before jax is imported (qdrl.spec_schema)
-        spec_schema.precheck(specs.load_spec(args.spec, args.set))
+    try:  # keys, types, ranges and names, before jax is imported (qdrl.spec_schema); a program
+        # that imported the table itself (to register algorithms) gets the full check at once
+        spec = specs.load_spec(args.spec, args.set)
+        if "qdrl.algorithms" not in sys.modules:
+            spec_schema.precheck(spec)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2

@@ -536,7 +536,7 @@ def _summary(s: _Session, state: Any) -> dict[str, Any]:
         alg.plot(state, s.rows, s.out_dir)
     if s.log.plots and s.rows:
         plotting.plot_curves(
-            s.rows, s.out_dir / "plots", x_keys=plotting.default_x_keys(s.rows),
+            s.rows, s.out_dir / "plots", x_keys=plotting.default_x_keys(s.rows), y_keys=alg.curves,
             title=f"{exp.algorithm} on {alg.task}",
         )
     summary = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}

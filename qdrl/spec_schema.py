@@ -114,15 +114,20 @@ def _schema() -> dict[str, Any]:
     return schema
 
 
-@functools.cache
-def _decoded(table_json: str) -> dict[str, Any]:
-    return {k: decode_type(v) for k, v in json.loads(table_json).items()}
+_DECODED: dict[int, dict[str, Any]] = {}  # by the id of a table of the (cached, never freed) schema
+
+
+def _decoded(table: Mapping[str, Any]) -> dict[str, Any]:
+    """The declared types of a table of the schema, decoded once."""
+    if id(table) not in _DECODED:
+        _DECODED[id(table)] = {k: decode_type(v) for k, v in table.items()}
+    return _DECODED[id(table)]
 
 
 def _check_table(data: Mapping[str, Any], entry: Mapping[str, Any], section: str, extra: tuple[str, ...] = ()) -> None:
     """The keys of `data` against one recorded table, with the full check's messages."""
     table = entry["table"]
-    types = _decoded(json.dumps(table, sort_keys=True))
+    types = _decoded(table)
     owner = entry["owner"]
     if owner:  # check_params: keys in the order given, "unknown key for <owner>"
         accepted = sorted(table)

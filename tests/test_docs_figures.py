@@ -28,6 +28,8 @@ finally:
 # into its own output directory (the docs describe what a run, a report or a render writes).
 RUN_TIME_OUTPUTS = {
     "plots/*.png",  # qdrl run: one learning-curve plot per metric
+    "plots/summary.png",  # qdrl run: the run in one figure
+    "summary.png",  # the README's list of what `qdrl run default` leaves in plots/
     "plots/archive.png",  # qdrl run of an RL / skills agent: its passive archive
     "plots/repertoire.png",  # qdrl run of a QD algorithm: the repertoire's heatmap
     "plots/population.png",  # qdrl run of PBT: the population's members

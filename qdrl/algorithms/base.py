@@ -182,6 +182,9 @@ class Algorithm(NamedTuple):
     finish: Callable[[Any, list[Row], Path], dict[str, Any]]
     placement: Placement
     plot: Callable[[Any, list[Row], Path], None] | None = None
+    # The metrics the driver draws one PNG each (plots/<metric>.png); None: every column. RL and
+    # skill runs draw their one summary figure (`plot`) and only the return apart.
+    curves: tuple[str, ...] | None = None
     state_axes: Any = None  # which axis of each part of the state is split over the devices
     run_context: Callable[[], AbstractContextManager[Any]] | None = None
     descriptor_space: DescriptorSpace | None = None

@@ -36,6 +36,7 @@ from qdrl.algorithms.base import (
     scalar,
 )
 from qdrl.algorithms.rl import (
+    RL_CURVES,
     archive_labels,
     make_env,
     parse_off_policy,
@@ -171,6 +172,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         }
 
     return Algorithm(
+        curves=RL_CURVES,
         task=env_cfg.name,
         sections=sections,
         num_chunks=train_cfg.num_chunks,

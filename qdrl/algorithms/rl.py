@@ -43,6 +43,9 @@ from qdrl.types import Array, PRNGKey
 
 __all__ = ["SAC", "TD3", "ArchiveConfig", "EnvConfig", "RLState", "archive_labels", "plot_archive", "write_archive"]
 
+# The metrics an RL or skill run draws one PNG each; plots/summary.png draws them all.
+RL_CURVES = ("eval_return",)
+
 EnvName = Annotated[str, OneOf(env_names)]
 StateDescriptor = Annotated[str, OneOf(lambda: STATE_DESCRIPTORS)]
 EVAL_KEYS = ("eval_return", "eval_return_std", "eval_length")
@@ -234,6 +237,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         return {"grad_steps": int(np.asarray(state.train.grad_steps))}
 
     return Algorithm(
+        curves=RL_CURVES,
         task=env_cfg.name,
         sections=sections,
         num_chunks=train_cfg.num_chunks,

@@ -58,6 +58,7 @@ from qdrl.algorithms.base import (
     Sections,
 )
 from qdrl.algorithms.rl import (
+    RL_CURVES,
     ArchiveConfig,
     RLState,
     check_train_devices,
@@ -316,6 +317,7 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         )
 
     return Algorithm(
+        curves=RL_CURVES,
         task=env_cfg.task,
         sections={**sections, "archive": archive_cfg},
         num_chunks=train_cfg.num_chunks,
