@@ -317,9 +317,10 @@ def _assemble(cls: type[Any], values: Mapping[tuple[str, ...], Any]) -> dict[str
     return kwargs
 
 
-# Called with (section, {key: declared type}, the keys given, selector) by every `check_keys`
-# and `check_params`: how `qdrl.spec_schema` records what each section of each algorithm takes.
-# `selector` is ("name", value) for a table whose keys the value of another key decides.
+# Called with (section, {key: declared type}, the keys given, selector, owner) by every
+# `check_keys` and `check_params`: how `qdrl.spec_recording` records what each section of each
+# algorithm takes. `selector` is ("name", value) for a table whose keys the value of another
+# key decides (a task's builder); `owner` is check_params' ("task 'arm'"), else "".
 OBSERVERS: list[Callable[[str, Mapping[str, Any], Mapping[str, Any], tuple[str, str] | None, str], None]] = []
 
 
