@@ -7,14 +7,17 @@ is kept in a persistent cache that later tests and the subprocesses they start (
 inherit these variables) reuse. The cache is the suite's own: `$QDRL_TEST_CACHE_DIR`
 (`.ci/run` gives a fresh, empty one) or the checkout's `.jax_cache/`, never a
 `JAX_COMPILATION_CACHE_DIR` the environment set, so every run starts from what this
-suite compiled, as a new user's does.
+suite compiled, as a new user's does. On Python 3.11, whose coverage tracer slows every
+Python frame, jax's lowering and XLA's compile (no qdrl code in either) run untraced.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
+import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -31,6 +34,40 @@ if "xla_backend_optimization_level" not in _flags:
         f"{_flags} --xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
     ).strip()
 os.environ["QDRL_CACHE_DIR"] = str(_cache / "qdrl")  # compile-time records of test runs
+
+
+def _untraced(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """`fn` run with the thread's trace function (coverage's tracer) off, then back on."""
+
+    @functools.wraps(fn)
+    def call(*args: Any, **kwargs: Any) -> Any:
+        tracer = sys.gettrace()
+        if tracer is None:
+            return fn(*args, **kwargs)
+        sys.settrace(None)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            sys.settrace(tracer)
+
+    return call
+
+
+def _lower_and_compile_untraced() -> None:
+    """On Python 3.11 coverage measures with `sys.settrace` (no `sys.monitoring`), which slows
+    every Python frame while it is on, qdrl's or not. jax's lowering of a traced program to
+    MLIR and XLA's compile run none of qdrl's code (it all runs while jax traces, which stays
+    measured): they run with the tracer off, as 3.12's `sys.monitoring` leaves them untouched."""
+    if sys.version_info >= (3, 12):
+        return
+    from jax._src import compiler
+    from jax._src.interpreters import mlir
+
+    mlir.lower_jaxpr_to_module = _untraced(mlir.lower_jaxpr_to_module)
+    compiler.compile_or_get_cached = _untraced(compiler.compile_or_get_cached)
+
+
+_lower_and_compile_untraced()
 
 
 @pytest.fixture
