@@ -56,15 +56,16 @@ def _untraced(fn: Callable[..., Any]) -> Callable[..., Any]:
 def _lower_and_compile_untraced() -> None:
     """On Python 3.11 coverage measures with `sys.settrace` (no `sys.monitoring`), which slows
     every Python frame while it is on, qdrl's or not. jax's lowering of a traced program to
-    MLIR and XLA's compile run none of qdrl's code (it all runs while jax traces, which stays
-    measured): they run with the tracer off, as 3.12's `sys.monitoring` leaves them untouched."""
+    MLIR and XLA's backend compile run none of qdrl's code (qdrl's runs while jax traces, and
+    its jax.monitoring listeners are called around these two, all of which stays measured):
+    they run with the tracer off, as 3.12's `sys.monitoring` leaves them untouched."""
     if sys.version_info >= (3, 12):
         return
     from jax._src import compiler
     from jax._src.interpreters import mlir
 
     mlir.lower_jaxpr_to_module = _untraced(mlir.lower_jaxpr_to_module)
-    compiler.compile_or_get_cached = _untraced(compiler.compile_or_get_cached)
+    compiler.backend_compile_and_load = _untraced(compiler.backend_compile_and_load)
 
 
 _lower_and_compile_untraced()
