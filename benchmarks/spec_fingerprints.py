@@ -16,7 +16,6 @@ record is compared with one made the same way.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import math
 import os
@@ -140,13 +139,11 @@ def _clean(value: Any) -> Any:
 def _state_digest(checkpoint_dir: Path) -> str:
     import numpy as np
 
+    from qdrl.checkpoint import state_digest
+
     newest = sorted(checkpoint_dir.glob("step_*"))[-1]
-    digest = hashlib.sha256()
     with np.load(newest / "state.npz") as npz:
-        for name in sorted(npz.files):
-            digest.update(name.encode())
-            digest.update(np.ascontiguousarray(npz[name]).tobytes())
-    return digest.hexdigest()[:16]
+        return state_digest({name: npz[name] for name in npz.files})
 
 
 def fingerprint(name: str) -> dict[str, Any]:

@@ -27,6 +27,7 @@ Only one process should save into a given directory at a time.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -53,6 +54,7 @@ __all__ = [
     "restore",
     "restore_newest",
     "save",
+    "state_digest",
     "step_of",
     "verify",
 ]
@@ -260,6 +262,16 @@ def save(
         if child.name.startswith((_TMP_PREFIX, _TRASH_PREFIX)) and child.is_dir():
             shutil.rmtree(child, ignore_errors=True)
     return final
+
+
+def state_digest(arrays: Mapping[str, Any]) -> str:
+    """16 hex digits of the SHA-256 of a checkpoint's arrays (`state.npz`'s, by name): equal
+    digests, bit-identical states (regression records, old-checkpoint fixtures)."""
+    digest = hashlib.sha256()
+    for name in sorted(arrays):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(arrays[name]).tobytes())
+    return digest.hexdigest()[:16]
 
 
 def latest(directory: str | os.PathLike[str]) -> Path | None:

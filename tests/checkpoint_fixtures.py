@@ -14,7 +14,6 @@ test suite's, tests/conftest.py).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import platform
@@ -50,15 +49,6 @@ def state_arrays(checkpoint_dir: Path) -> dict[str, np.ndarray]:
     newest = sorted(checkpoint_dir.glob("step_*"))[-1]
     with np.load(newest / "state.npz") as npz:
         return {name: npz[name] for name in npz.files}
-
-
-def state_digest(arrays: dict[str, np.ndarray]) -> str:
-    """SHA-256 of the arrays by name (16 hex digits)."""
-    digest = hashlib.sha256()
-    for name in sorted(arrays):
-        digest.update(name.encode())
-        digest.update(np.ascontiguousarray(arrays[name]).tobytes())
-    return digest.hexdigest()[:16]
 
 
 def clean(value: Any) -> Any:
@@ -99,11 +89,10 @@ def record() -> None:
                 "python": f"{sys.version_info[0]}.{sys.version_info[1]}",
                 "cpu": cpu_signature(),
             },
-            "state": state_digest(arrays),
             "summary": clean({k: v for k, v in summary.items() if k not in TIMED}),
         }
         (fixture / "expected.json").write_text(json.dumps(expected, indent=1, sort_keys=True) + "\n")
-        print(fixture.name, expected["state"])
+        print(fixture.name, len(arrays), "arrays")
 
 
 if __name__ == "__main__":

@@ -30,7 +30,6 @@ from checkpoint_fixtures import (
     cpu_signature,
     resume,
     state_arrays,
-    state_digest,
 )
 
 from qdrl import __version__
@@ -72,7 +71,8 @@ def test_a_checkpoint_of_qdrl_0_1_0_resumes_bit_identically(name: str, tmp_path:
             if key in COUNTERS or isinstance(value, str | list):
                 assert got[key] == value, key
     elif cpu_signature() == made_with["cpu"]:
-        assert state_digest(state) == expected["state"] == state_digest(reference)
+        for key, value in reference.items():  # every array, bit for bit
+            assert state[key].tobytes() == value.tobytes(), key
         assert got == expected["summary"]
     else:  # the same jax on other vector units: floats to rounding, the rest exactly
         for key, value in reference.items():

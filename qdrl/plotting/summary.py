@@ -139,6 +139,17 @@ def _cost_key(rows: Sequence[Mapping[str, Any]]) -> str:
     return "log_point"
 
 
+def _summary_source(metrics: Any, elites: Any, title: str) -> tuple[list[Any], Any, str]:
+    """(the metric rows, where the elites come from, the title) of a one-figure summary:
+    `metrics` a loaded run (its metrics; its elites unless `elites` is given; "<algorithm> on
+    <task>" unless `title` is) or the metrics themselves (a DataFrame or rows)."""
+    run = metrics if hasattr(metrics, "metrics") and hasattr(metrics, "repertoire") else None
+    rows = _rows_of(run.metrics if run is not None else metrics)
+    if not title and run is not None:
+        title = f"{getattr(run, 'algorithm', '')} on {getattr(run, 'task_name', '')}"
+    return rows, (elites if elites is not None else run), title
+
+
 @overload
 def plot_qd_summary(
     metrics: Any, repertoire: Any = ..., path: str | Path = ..., low: Any = ..., high: Any = ...,
@@ -176,13 +187,9 @@ def plot_qd_summary(
     Returns:
       `fig` when given, else `path` when given, else a new Figure.
     """
-    run = metrics if hasattr(metrics, "metrics") and hasattr(metrics, "repertoire") else None
-    rows = _rows_of(run.metrics if run is not None else metrics)
-    source = repertoire if repertoire is not None else run
+    rows, source, title = _summary_source(metrics, repertoire, title)
     if source is None:
         raise ValueError("plot_qd_summary: expected a loaded run, or metrics with a repertoire")
-    if not title and run is not None:
-        title = f"{getattr(run, 'algorithm', '')} on {getattr(run, 'task_name', '')}"
     elites, low, high, labels = elites_of(source, low, high, labels)
     x_key = _cost_key(rows)
     shown = [k for k in SUMMARY_METRICS if any(k in r for r in rows)]
@@ -307,11 +314,7 @@ def plot_rl_summary(
     Returns:
       `fig` when given, else `path` when given, else a new Figure.
     """
-    run = metrics if hasattr(metrics, "metrics") and hasattr(metrics, "repertoire") else None
-    rows = _rows_of(run.metrics if run is not None else metrics)
-    source = archive if archive is not None else run
-    if not title and run is not None:
-        title = f"{getattr(run, 'algorithm', '')} on {getattr(run, 'task_name', '')}"
+    rows, source, title = _summary_source(metrics, archive, title)
     elites = None
     if source is not None:
         elites, low, high, labels = elites_of(source, low, high, labels)
