@@ -175,6 +175,43 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_suite(args: argparse.Namespace) -> int:
+    from qdrl import suites  # jax-free until a spec is checked
+
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            suite = suites.load_suite(args.file, args.out)
+    except ConfigError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
+    if args.action == "status":
+        status = suites.suite_status(suite)
+        for r in status["runs"]:
+            done = "" if r["status"] == "not started" else (
+                f" ({int(r.get('env_steps') or 0):,} env steps, {float(r.get('wall_s') or 0.0):.0f} s)"
+            )
+            print(f"{r['status']:>11}  {r['task']:<16} {r['algorithm']:<14} seed {r['seed']}{done}")
+        c = status["counts"]
+        print(f"{c['done']} done, {c['partial']} partial, {c['not started']} not started; in {suite.out}")
+        return 0
+    from qdrl import experiment
+
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            status = suites.run_suite(suite, on_start=_writing)
+    except ConfigError as e:
+        print(f"qdrl: error: {e}", file=sys.stderr)
+        return 2
+    except experiment.RunInterrupted as e:
+        print(f"qdrl: {e}", file=sys.stderr)
+        print(f"qdrl: resume with: qdrl suite run {args.file}" + (f" --out {args.out}" if args.out else ""), file=sys.stderr)
+        return _interrupted()
+    except Exception as e:
+        return _report_crash(e, suite.out, args.argv)
+    print(json.dumps(status, indent=2))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `qdrl` console script."""
     quiet()  # dependencies' import notices and MUJOCO_LOG.TXT (qdrl/_quiet.py)
@@ -225,6 +262,15 @@ def main(argv: list[str] | None = None) -> int:
     p_run.add_argument("--num-processes", type=int, default=None, metavar="N", help="processes in the run (implies --distributed)")
     p_run.add_argument("--process-id", type=int, default=None, metavar="I", help="this process's index, 0 to N-1 (implies --distributed)")
     p_run.set_defaults(fn=_cmd_run)
+
+    p_suite = sub.add_parser(
+        "suite",
+        help="run a suite file (specs x tasks x seeds under one budget; resumable) or say what of it is done",
+    )
+    p_suite.add_argument("action", choices=("run", "status"), help="run what is not done, or list each run's status")
+    p_suite.add_argument("file", help="a suite file, or a packaged suite's name (seed_benchmark, seed_benchmark_cpu)")
+    p_suite.add_argument("--out", default=None, help="output directory (default: runs/<suite name>)")
+    p_suite.set_defaults(fn=_cmd_suite)
 
     p_list = sub.add_parser("list", help="list specs, algorithms and tasks")
     p_list.set_defaults(fn=_cmd_list)

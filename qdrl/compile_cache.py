@@ -36,7 +36,9 @@ __all__ = ["cache_dir", "cache_hits", "enabled", "estimate", "record", "spec_key
 
 _TIMES_FILE = "compile_times.json"
 # Keys that do not change what is compiled (logging, seed, label; and the run's length key).
-_NOT_COMPILED = ("log", "experiment.seed", "experiment.name", "experiment.time_limit_s")
+_NOT_COMPILED = (
+    "log", "experiment.seed", "experiment.name", "experiment.time_limit_s", "experiment.env_steps_limit",
+)
 
 
 def cache_dir() -> Path:

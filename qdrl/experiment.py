@@ -232,34 +232,43 @@ def _check_resume_spec(config_path: Path, config_text: str, length_key: str) -> 
     if not config_path.is_file():
         raise ConfigError(f"--resume: {config_path} is missing; expected the resolved spec of the run")
     changes = spec_changes(config_path.read_text(), config_text)
-    free = (length_key, TIME_LIMIT_KEY)
+    free = (length_key, TIME_LIMIT_KEY, ENV_STEPS_LIMIT_KEY)
     fixed = [c for c in changes if c[0] not in free and not c[0].startswith("log.")]
     if fixed:
         listed = ", ".join(f"{k} {_show(a)} -> {_show(b)}" for k, a, b in changes)
         raise ConfigError(
             f"--resume: the spec differs from {config_path}: {listed}; only "
-            f"{length_key} (to extend the run), {TIME_LIMIT_KEY} and [log] may change on resume"
+            f"{length_key} (to extend the run), {TIME_LIMIT_KEY}, {ENV_STEPS_LIMIT_KEY} and [log] may change on resume"
         )
 
 
-def _check_time_limit(out_dir: Path, time_limit_s: float | None) -> None:
-    """Refuses (before compiling) to resume a run stopped at its time limit with a limit that
-    its wall time has already reached: it would stop again at once."""
+def _check_time_limit(out_dir: Path, time_limit_s: float | None, env_steps_limit: int | None = None) -> None:
+    """Refuses (before compiling) to resume a run stopped at its time limit (or its
+    environment-steps limit) with a limit that it has already reached: it would stop again at once."""
     try:
         summary = json.loads((out_dir / "summary.json").read_text())
     except (OSError, ValueError):
         return
-    if not isinstance(summary, dict) or summary.get("stopped_by") != "time_limit":
+    if not isinstance(summary, dict):
         return
-    spent = float(summary.get("wall_s", 0.0))
-    if time_limit_s is not None and time_limit_s <= spent:
+    budgets = {  # the reason a run stopped -> (its new limit, what it has done, the key, the flag)
+        "time_limit": (time_limit_s, float(summary.get("wall_s", 0.0)), TIME_LIMIT_KEY, " (--time-limit)"),
+        "env_steps_limit": (env_steps_limit, int(summary.get("env_steps", 0)), ENV_STEPS_LIMIT_KEY, ""),
+    }
+    if summary.get("stopped_by") not in budgets:
+        return
+    limit, done, key, flag = budgets[summary["stopped_by"]]
+    if limit is not None and limit <= done:
+        what = f"its time limit after {done:.0f} s" if key == TIME_LIMIT_KEY else (
+            f"its environment-steps limit after {done:,} steps"
+        )
         raise ConfigError(
-            f"--resume: {out_dir} stopped at its time limit after {spent:.0f} s; expected a larger "
-            f"{TIME_LIMIT_KEY} (--time-limit) than that, or none, got {time_limit_s:g}"
+            f"--resume: {out_dir} stopped at {what}; expected a larger {key}{flag} than that, or none, got {limit:g}"
         )
 
 
 TIME_LIMIT_KEY = "experiment.time_limit_s"
+ENV_STEPS_LIMIT_KEY = "experiment.env_steps_limit"
 
 
 def _newest_log_point(ckpt_dir: Path) -> tuple[Path | None, int]:
@@ -365,7 +374,8 @@ class _Session:
     wall_offset: float = 0.0
     run_s: float = 0.0
     compile_s: float = 0.0  # the chunk's compilation
-    stopped_at: int = 0  # log points done when the time limit stopped the run (0: not stopped)
+    stopped_at: int = 0  # log points done when a budget (time, env steps) stopped the run (0: not stopped)
+    stopped_by: str = ""  # why: "time_limit" or "env_steps_limit"
     startup_s: float = 0.0  # this session's start: initial state, checkpoint, compilations
 
     @property
@@ -395,7 +405,7 @@ def _open(spec: Mapping[str, Any], out_dir: Path, resume: bool, overwrite: bool,
             raise ConfigError(f"--resume: no checkpoint found in {s.ckpt_dir}")
         _check_resume_spec(out_dir / "config.toml", s.config_text, length_key)
         _check_resume_checkpoints(found, alg.num_chunks, length_key)
-        _check_time_limit(out_dir, exp.time_limit_s)
+        _check_time_limit(out_dir, exp.time_limit_s, exp.env_steps_limit)
     if s.primary and overwrite and not resume and out_dir.exists():
         shutil.rmtree(out_dir)
     if s.primary:
@@ -488,11 +498,17 @@ def _loop(
             if not saved:
                 last_saved = save(chunk, row, wall_s)
             raise RunInterrupted(s.out_dir, last_saved, chunk + 1, alg.num_chunks)
-        limit = s.exp.time_limit_s
-        if limit is not None and wall_s >= limit and not last:  # the budget is spent: stop here
+        limit, steps_limit = s.exp.time_limit_s, s.exp.env_steps_limit
+        if limit is not None and wall_s >= limit:
+            reason = "time_limit"
+        elif steps_limit is not None and row["env_steps"] >= steps_limit:
+            reason = "env_steps_limit"
+        else:
+            reason = None
+        if reason is not None and not last:  # the budget is spent: stop here
             if not saved:
                 last_saved = save(chunk, row, wall_s)
-            s.stopped_at = chunk + 1
+            s.stopped_at, s.stopped_by = chunk + 1, reason
             break
     return state
 
@@ -513,9 +529,11 @@ def _summary(s: _Session, state: Any) -> dict[str, Any]:
         "run_s": s.run_s,
     }
     if s.stopped_at:  # why the run ended before its length
+        limit = {"time_limit_s": s.exp.time_limit_s} if s.stopped_by == "time_limit" else {
+            "env_steps_limit": s.exp.env_steps_limit
+        }
         summary.update({
-            "stopped_by": "time_limit", "time_limit_s": s.exp.time_limit_s,
-            "log_points": s.stopped_at, "num_log_points": alg.num_chunks,
+            "stopped_by": s.stopped_by, **limit, "log_points": s.stopped_at, "num_log_points": alg.num_chunks,
         })
     if "env_steps_per_s" in final:
         summary["env_steps_per_s"] = final["env_steps_per_s"]
@@ -618,11 +636,17 @@ def run(
             state = _loop(s, state, chunk_fn, restored, progress, dashboards, stop, worker)
         finally:
             progress.close()
-    if s.stopped_at:
+    if s.stopped_at and s.stopped_by == "time_limit":
         print(
             f"qdrl: stopped at the time limit ({s.exp.time_limit_s:g} s) after log point {s.stopped_at} "
             f"of {alg.num_chunks} ({s.rows[-1]['wall_s']:.0f} s); --resume with a larger "
             f"{TIME_LIMIT_KEY} (--time-limit) continues it", file=sys.stderr,
+        )
+    elif s.stopped_at:
+        print(
+            f"qdrl: stopped at the environment-steps limit ({s.exp.env_steps_limit:,}) after log point "
+            f"{s.stopped_at} of {alg.num_chunks} ({int(s.rows[-1]['env_steps']):,} steps); --resume with "
+            f"a larger {ENV_STEPS_LIMIT_KEY} continues it", file=sys.stderr,
         )
     return _summary(s, state)
 

@@ -19,7 +19,10 @@ everywhere (the env steps of a function task) is never an axis. It writes:
 - `final.csv`: the final value of every metric, per task and spec: seeds, mean,
   std, min, max, and the interquartile mean (IQM) with its bootstrap interval, as
   rliable recommends for RL returns (Agarwal et al. 2021);
-- `report.md`: the headline metrics' table (mean ± std, IQM) and the figures.
+- `throughput.csv`: per task and spec, the environment steps done and the steps per hour,
+  of wall time (compilation included) and of run time (compilation excluded), means over
+  seeds (the QDax paper's Table 2);
+- `report.md`: the headline metrics' table (mean ± std, IQM), the throughput table and the figures.
 """
 
 from __future__ import annotations
@@ -202,6 +205,29 @@ def _repertoire_of(run: LoadedRun) -> tuple[Any, list[float], list[float], list[
     return rep, low, high, names if names and len(names) == len(low) else None
 
 
+def throughput(group: Group) -> list[dict[str, Any]]:
+    """Per spec of a task: seeds, mean environment steps, mean wall and run time, and the mean
+    environment steps per hour of wall time and of run time (runs that wrote their summary)."""
+    out = []
+    for label, runs in group.runs.items():
+        done = [
+            r.summary for r in runs
+            if r.summary and all(float(r.summary.get(k) or 0) > 0 for k in ("env_steps", "wall_s", "run_s"))
+        ]
+        if not done:
+            continue
+        steps = np.array([float(s["env_steps"]) for s in done])
+        wall = np.array([float(s["wall_s"]) for s in done])
+        run_s = np.array([float(s["run_s"]) for s in done])
+        out.append({
+            "task": group.task, "spec": label, "seeds": len(done), "env_steps": float(steps.mean()),
+            "wall_s": float(wall.mean()), "run_s": float(run_s.mean()),
+            "env_steps_per_hour": float(np.mean(steps / wall * 3600.0)),
+            "env_steps_per_hour_run": float(np.mean(steps / run_s * 3600.0)),
+        })
+    return out
+
+
 def _decimals(std: float, value: float) -> int:
     """Decimals that show two significant digits of `std` (of `value` when std is 0)."""
     scale = std if std > 0 and math.isfinite(std) else abs(value)
@@ -237,6 +263,7 @@ def report(
     out.mkdir(parents=True, exist_ok=True)
     result: dict[str, Any] = {"out": str(out), "groups": {}}
     csv_rows: list[dict[str, Any]] = []
+    speed_rows: list[dict[str, Any]] = []
     md = ["# Report", "", "Runs: " + ", ".join(f"`{p}`" for p in paths), ""]
     md += [
         f"Curves: mean over seeds, band: {confidence:.0%} percentile bootstrap interval over seeds "
@@ -287,7 +314,9 @@ def report(
             "figures": figures,
             "repertoires": str(rep_path) if rep_path else None,
         }
-        md += _task_section(group, [r for r in csv_rows if r["task"] == group.task], figures, rep_path, out)
+        speed = throughput(group)
+        speed_rows.extend(speed)
+        md += _task_section(group, [r for r in csv_rows if r["task"] == group.task], figures, rep_path, out, speed)
 
     csv_path = out / "final.csv"
     fields = ["task", "spec", "metric", "seeds", "mean", "std", "min", "max", "iqm", "iqm_low", "iqm_high"]
@@ -295,17 +324,24 @@ def report(
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(csv_rows)
+    speed_path = out / "throughput.csv"
+    with speed_path.open("w", newline="") as f:
+        speed_fields = ["task", "spec", "seeds", "env_steps", "wall_s", "run_s", "env_steps_per_hour", "env_steps_per_hour_run"]
+        writer = csv.DictWriter(f, fieldnames=speed_fields)
+        writer.writeheader()
+        writer.writerows(speed_rows)
     md_path = out / "report.md"
     md_path.write_text("\n".join(md) + "\n")
-    result.update({"table": str(md_path), "csv": str(csv_path)})
+    result.update({"table": str(md_path), "csv": str(csv_path), "throughput": str(speed_path)})
     (out / "report.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
 
 
 def _task_section(
-    group: Group, rows: list[dict[str, Any]], figures: list[dict[str, Any]], rep_path: Path | None, out: Path
+    group: Group, rows: list[dict[str, Any]], figures: list[dict[str, Any]], rep_path: Path | None, out: Path,
+    speed: Sequence[Mapping[str, Any]] = (),
 ) -> list[str]:
-    """report.md's section of one task: the headline table, then the figures."""
+    """report.md's section of one task: the headline table, the throughput table, then the figures."""
     lines = [f"## {group.task}", ""]
     seeds = {label: ", ".join(str(r.seed) for r in runs) for label, runs in group.runs.items()}
     metrics = [m for m in HEADLINE_METRICS if any(r["metric"] == m for r in rows)]
@@ -320,6 +356,15 @@ def _task_section(
             cells.append("" if value is None else _cell(value))
         lines.append(f"| {label} | {seeds[label]} | " + " | ".join(cells) + " |")
     lines.append("")
+    if speed:
+        lines.append("| spec | seeds | env steps | wall time (s) | env steps per hour | per hour, compilation excluded |")
+        lines.append("|---|---|---|---|---|---|")
+        for r in speed:
+            lines.append(
+                f"| {r['spec']} | {r['seeds']} | {r['env_steps']:,.0f} | {r['wall_s']:,.0f} | "
+                f"{r['env_steps_per_hour']:.3g} | {r['env_steps_per_hour_run']:.3g} |"
+            )
+        lines.append("")
     for figure in figures:
         lines.append(f"![{figure['metric']}]({Path(figure['path']).relative_to(out).as_posix()})")
     if rep_path is not None:

@@ -6,7 +6,11 @@ directory. From a source tree that is not installed (PYTHONPATH), the `agents/`
 directory beside the `qdrl` package is used instead.
 
     qdrl run default                 # a packaged spec, by name
+    qdrl run seed_benchmark/map_elites_ant_omni_cpu   # one in a folder of packaged specs
     qdrl run agents/default.toml     # a path works as before
+
+Folders of packaged specs: `seed_benchmark/` (the skill-discovery benchmark of Chalumeau,
+Boige et al. 2023, one spec per algorithm and task) and `suites/` (suite files, `qdrl suite`).
 """
 
 from __future__ import annotations
@@ -18,7 +22,10 @@ from typing import Any
 
 from qdrl.config import ConfigError, apply_overrides, load_toml
 
-__all__ = ["describe", "resolve", "spec_dir", "spec_names"]
+__all__ = ["SPEC_FOLDERS", "describe", "resolve", "spec_dir", "spec_names"]
+
+# The folders of packaged specs whose files `resolve` finds as "<folder>/<name>".
+SPEC_FOLDERS = ("seed_benchmark",)
 
 
 def spec_dir() -> Path | None:
@@ -33,13 +40,21 @@ def spec_dir() -> Path | None:
     return source if source.is_dir() else None
 
 
-def spec_names() -> list[str]:
-    """The names of the packaged specs (file stems), sorted."""
+def spec_names(folder: str | None = None) -> list[str]:
+    """The names of the packaged specs (file stems), sorted; those of one of `SPEC_FOLDERS`
+    (as "<folder>/<stem>") with `folder`."""
     d = spec_dir()
-    return sorted(p.stem for p in d.glob("*.toml")) if d is not None else []
+    if d is None:
+        return []
+    if folder is None:
+        return sorted(p.stem for p in d.glob("*.toml"))
+    return sorted(f"{folder}/{p.stem}" for p in (d / folder).glob("*.toml"))
 
 
 def _is_name(text: str) -> bool:
+    head, _, tail = text.partition("/")
+    if tail and head in SPEC_FOLDERS:
+        return "/" not in tail and "\\" not in tail and not tail.startswith(".")
     return "/" not in text and "\\" not in text and not text.startswith(".")
 
 
@@ -55,7 +70,8 @@ def resolve(spec: str | Path) -> Path:
         d = spec_dir()
         if d is not None and (d / f"{name}.toml").is_file():
             return d / f"{name}.toml"
-        close = difflib.get_close_matches(name, spec_names(), n=3)
+        folder = name.partition("/")[0] if "/" in name else None
+        close = difflib.get_close_matches(name, spec_names(folder), n=3)
         hint = f"; close names: {', '.join(close)}" if close else ""
         raise ConfigError(
             f"spec {text!r}: expected a spec file or the name of a packaged spec "

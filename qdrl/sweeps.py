@@ -12,7 +12,7 @@ from qdrl import checkpoint
 from qdrl.config import ConfigError
 from qdrl.experiment import check_spec, default_out_dir, flat_spec, load_spec, run
 
-__all__ = ["parse_seeds", "run_seeds", "seed_dir"]
+__all__ = ["finished_as_given", "parse_seeds", "run_seeds", "seed_dir"]
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -45,7 +45,7 @@ def _with_seed(spec: Mapping[str, Any], seed: int) -> dict[str, Any]:
     return out
 
 
-def _finished_as_given(out_dir: Path, spec: Mapping[str, Any]) -> dict[str, Any] | None:
+def finished_as_given(out_dir: Path, spec: Mapping[str, Any]) -> dict[str, Any] | None:
     """The summary of a finished run in `out_dir` whose resolved spec agrees with every key
     `spec` gives, or None (not finished, or another length or setting)."""
     summary, config = out_dir / "summary.json", out_dir / "config.toml"
@@ -97,7 +97,7 @@ def run_seeds(
     summaries: dict[int, dict[str, Any]] = {}
     for i, seed in enumerate(seeds):
         spec, where = _with_seed(base, seed), seed_dir(out, seed)
-        finished = _finished_as_given(where, spec) if resume else None
+        finished = finished_as_given(where, spec) if resume else None
         if finished is not None:
             print(f"qdrl: seed {seed} ({i + 1} of {len(seeds)}): finished in {where}, skipped", file=sys.stderr)
             summaries[seed] = finished

@@ -190,7 +190,7 @@ def test_resume_names_each_differing_key(
     assert str(info.value).startswith(
         f"--resume: the spec differs from {out / 'config.toml'}: "
         "emitter.iso_sigma 0.01 -> 0.02, qd.num_iterations 8 -> 12; only qd.num_iterations "
-        "(to extend the run), experiment.time_limit_s and [log] may change on resume"
+        "(to extend the run), experiment.time_limit_s, experiment.env_steps_limit and [log] may change on resume"
     )
     with pytest.raises(ConfigError, match=r"--resume: expected a length of at least the 4 log points"):
         run_spec(spec, ["qd.num_iterations=4"], out, resume=True)

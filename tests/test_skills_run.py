@@ -132,7 +132,7 @@ def test_brax_specs_build(path: Path) -> None:
         ("skills", "learning_rate", -1.0, "skills.learning_rate"),
         ("train", "num_eval_envs", 6, "train.num_eval_envs"),
         ("smerl", "margin", -1.0, "smerl.margin"),
-        ("env", "task", "ant_uni", "env.task"),
+        ("env", "task", "hopper_uni", "env.task"),
     ],
 )
 def test_bad_config_names_the_key(section: str, key: str, value: object, message: str) -> None:

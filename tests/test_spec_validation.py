@@ -262,6 +262,7 @@ ANY_FINITE_NUMBER = {
     ("pbt", "low"), ("pbt", "high"), ("me_pbt", "low"), ("me_pbt", "high"),  # search ranges (checked per name)
     ("skills", "diversity_scale"), ("skills", "extrinsic_scale"),  # reward weights, either sign
     ("smerl", "target"),  # a target return, either sign
+    ("archive", "fitness_range"), ("repertoire", "fitness_range"),  # a return range, either sign (min < max checked)
 }
 
 

@@ -60,6 +60,10 @@ class ExperimentConfig:
     # included): the run stops at the first log point past it, with a checkpoint and its
     # summary (`stopped_by = "time_limit"`); `--resume` with a larger limit continues it.
     time_limit_s: PositiveFloat | None = None
+    # An environment-steps budget: the run stops at the first log point at or past this many
+    # environment steps (`stopped_by = "env_steps_limit"`), as at its time limit; runs of
+    # different algorithms compared at equal steps (`qdrl suite`) share one.
+    env_steps_limit: PositiveInt | None = None
 
     def check(self) -> None:
         check_fields(self, "experiment")

@@ -99,7 +99,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
     def init(key: jax.Array) -> PBTState:
         member_key, hp_key, run_key = jax.random.split(key, 3)
         zero = jnp.zeros((), jnp.int32)
-        state = PBTState(population.init(member_key, hp_key), archive_cfg.empty(), run_key, zero, zero)
+        state = PBTState(population.init(member_key, hp_key), archive_cfg.empty(ctx.seed), run_key, zero, zero)
         return place.place(state, PBT_AXES)
 
     def chunk(state: PBTState) -> tuple[PBTState, dict[str, Any]]:
@@ -110,7 +110,7 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
         out_step = population.step(state.population, eval_key, pbt_key, due)
         ev = out_step.evaluation
         desc = ev["eval_final_desc"] if archive_cfg.descriptor == "final" else ev["eval_mean_desc"]
-        archive, qd = feed(state.archive, desc, ev["eval_returns"], archive_cfg.qd_offset)
+        archive, qd = feed(state.archive, desc, ev["eval_returns"], archive_cfg.qd_offset, archive_cfg.fitness_range)
         fitness = ev["eval_return"]  # (n,)
         best = jnp.argmax(jnp.where(jnp.isnan(fitness), -jnp.inf, fitness))
         out: dict[str, Any] = {k: jnp.nanmean(v) for k, v in out_step.train_metrics.items()}

@@ -87,10 +87,12 @@ from qdrl.qd.emitters.registry import (
     uses_cma_es,
 )
 from qdrl.qd.map_elites import MapElites, qd_state_axes
+from qdrl.qd.metrics import qd_metrics, range_qd_score
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, write_csv
 from qdrl.qd.repertoires.cvt import cvt_centroids
 from qdrl.tasks import TASKS, Task
+from qdrl.types import Array
 
 __all__ = [
     "QD_PROGRESS",
@@ -121,10 +123,17 @@ class RepertoireConfig:
     # from the elites move towards accepted fitnesses; 1 with threshold_min = -inf: plain MAP-Elites.
     learning_rate: UnitFloat = 1.0
     threshold_min: ThresholdMin = -math.inf  # the thresholds' start value (CMA-MAE: the lowest fitness)
+    # [min, max] fitness: the repertoire plots' colour scale, and the metric `range_qd_score`
+    # (`qdrl.qd.metrics.range_qd_score`: fitnesses clipped to the range, scaled to [0, 1], per cell)
+    fitness_range: tuple[float, float] | None = None
 
     def check(self) -> None:
         if not self.grid_shape:
             raise ValueError("repertoire.grid_shape: expected a list of positive integers, got []")
+        if self.fitness_range is not None and not self.fitness_range[0] < self.fitness_range[1]:
+            raise ValueError(
+                f"repertoire.fitness_range: expected [min, max] with min < max, got {list(self.fitness_range)}"
+            )
         if self.kind == "cvt" and self.cvt_samples < self.num_centroids:
             raise ValueError(
                 f"repertoire.cvt_samples: expected at least repertoire.num_centroids="
@@ -570,23 +579,35 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
         "env_steps": int(state.env_steps),
     }
     row.update(last_values(m, QD_METRICS))
+    if "range_qd_score" in m:  # repertoire.fitness_range given
+        row.update(last_values(m, ("range_qd_score",)))
     row["added_per_iter"] = float(np.mean(m["added"]))
     row.update({k: scalar(v) for k, v in jax.device_get(emitter_metrics(emitter, state.emitter_state)).items()})
     return row
 
 
-def plot_repertoire(rep: Any, out_dir: Path, task: Task, title: str, rows: list[Row] | None = None) -> None:
-    """A QD run's final repertoire drawn into plots/repertoire.png; with the run's `rows`, also
-    the one-figure summary plots/summary.png (QD score, coverage, max fitness, repertoire)."""
+def plot_repertoire(
+    rep: Any, out_dir: Path, task: Task, title: str, rows: list[Row] | None = None,
+    fitness_range: tuple[float, float] | None = None,
+) -> None:
+    """A QD run's final repertoire drawn into plots/repertoire.png (on the colour scale
+    `fitness_range` when given); with the run's `rows`, also the one-figure summary
+    plots/summary.png (QD score, coverage, max fitness, repertoire)."""
+    vmin, vmax = fitness_range if fitness_range is not None else (None, None)
     plotting.plot_repertoire(
         rep, out_dir / "plots" / "repertoire.png", task.descriptor_low, task.descriptor_high,
-        title=title, labels=task.descriptor_names,
+        title=title, labels=task.descriptor_names, vmin=vmin, vmax=vmax,
     )
     if rows:
         plotting.plot_qd_summary(
             rows, rep, out_dir / "plots" / "summary.png", task.descriptor_low, task.descriptor_high,
             task.descriptor_names, title,
         )
+
+
+def with_range_score(repertoire: Any, qd_offset: float, fitness_range: tuple[float, float]) -> dict[str, Array]:
+    """`qd_metrics` and the QD score on the scale of `fitness_range` (`range_qd_score`); jittable."""
+    return {**qd_metrics(repertoire, qd_offset), "range_qd_score": range_qd_score(repertoire, fitness_range)}
 
 
 def reevaluated(
@@ -626,7 +647,9 @@ def _build(
         the state is first made or traced, not when the run is built (`--check`, `load_run`)."""
         with jax.ensure_compile_time_eval(), (lapack or contextlib.nullcontext)():
             repertoire = empty(ctx.seed, ctx.centroids)
-        options = {} if container is None else {"metrics_fn": container.metrics(task)}
+        options: dict[str, Any] = {} if container is None else {"metrics_fn": container.metrics(task)}
+        if container is None and rep_cfg.fitness_range is not None:
+            options["metrics_fn"] = functools.partial(with_range_score, fitness_range=rep_cfg.fitness_range)
         return MapElites(
             parts.scoring_fn, parts.emitter, repertoire, qd_offset=task.qd_offset, placement=ctx.placement,
             **options,
@@ -662,7 +685,7 @@ def _build(
         if container is not None:
             container.plot(rep, out_dir, task, ctx.algorithm)
         else:
-            plot_repertoire(rep, out_dir, task, title, rows)
+            plot_repertoire(rep, out_dir, task, title, rows, rep_cfg.fitness_range)
 
     cells = None
     if rep_cfg.kind == "cvt" and ctx.centroids is None:

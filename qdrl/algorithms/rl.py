@@ -65,39 +65,74 @@ class EnvConfig:
 class ArchiveConfig:
     """The `[archive]` section: the passive archive that measures the run with QD metrics.
 
-    Each evaluation's episodes are offered to it as (episode descriptor, return).
+    Each evaluation's episodes are offered to it as (episode descriptor, return). A grid
+    (`grid_shape` cells over [low, high]) or a CVT (`num_centroids` k-means cells of
+    `cvt_samples` uniform samples, seeded by the run's seed as a CVT QD run seeds its
+    repertoire, so that a skill run and a MAP-Elites run of one seed share their cells).
     """
 
     descriptor: Literal["final", "mean"] = "final"  # last or episode-averaged state descriptor
-    grid_shape: tuple[PositiveInt, ...] = (32, 32)  # cells per descriptor dimension
+    kind: Literal["grid", "cvt"] = "grid"  # regular grid or CVT cells
+    grid_shape: tuple[PositiveInt, ...] = (32, 32)  # grid: cells per descriptor dimension
+    num_centroids: PositiveInt = 1024  # cvt: number of cells
+    cvt_samples: PositiveInt = 50_000  # cvt: uniform samples clustered by k-means into centroids
+    kmeans_iters: PositiveInt = 50  # cvt: at most this many Lloyd iterations
     low: tuple[float, ...] = (-50.0, -50.0)  # descriptor lower bounds (edge cells beyond)
     high: tuple[float, ...] = (50.0, 50.0)  # descriptor upper bounds
     qd_offset: float = 0.0  # QD score = sum over cells of (return - qd_offset)
+    # [min, max] return: the archive plots' colour scale, and `range_qd_score`, the QD score
+    # with each return clipped to the range and scaled to [0, 1], per cell, in [0, 1]
+    fitness_range: tuple[float, float] | None = None
 
     def check(self) -> None:
-        if not self.grid_shape:
+        dims = len(self.grid_shape) if self.kind == "grid" else len(self.low)
+        if self.kind == "grid" and not self.grid_shape:
             raise ValueError("archive.grid_shape: expected a list of positive integers, got []")
-        if len(self.low) != len(self.grid_shape) or len(self.high) != len(self.grid_shape):
+        if len(self.low) != dims or len(self.high) != dims or not dims:
+            what = "one per grid dimension" if self.kind == "grid" else "one per descriptor dimension"
             raise ValueError(
-                f"archive.low / archive.high: expected {len(self.grid_shape)} entries each "
-                f"(one per grid dimension), got {list(self.low)} and {list(self.high)}"
+                f"archive.low / archive.high: expected {dims or 'at least 1'} entries each "
+                f"({what}), got {list(self.low)} and {list(self.high)}"
             )
         if any(lo >= hi for lo, hi in zip(self.low, self.high, strict=True)):
             raise ValueError(
                 f"archive.low: expected every entry below archive.high, got {list(self.low)} "
                 f"and {list(self.high)}"
             )
+        if self.kind == "cvt" and self.cvt_samples < self.num_centroids:
+            raise ValueError(
+                f"archive.cvt_samples: expected at least archive.num_centroids={self.num_centroids}, "
+                f"got {self.cvt_samples}"
+            )
+        if self.fitness_range is not None and not self.fitness_range[0] < self.fitness_range[1]:
+            raise ValueError(
+                f"archive.fitness_range: expected [min, max] with min < max, got {list(self.fitness_range)}"
+            )
 
-    def empty(self) -> CellRepertoire:
-        """The empty passive archive."""
-        return passive_archive("grid", grid_shape=self.grid_shape, low=self.low, high=self.high)
+    @property
+    def num_dims(self) -> int:
+        """The descriptor dimensions the archive covers."""
+        return len(self.grid_shape) if self.kind == "grid" else len(self.low)
+
+    def empty(self, seed: int) -> CellRepertoire:
+        """The empty passive archive of a run of seed `seed` (the seed only draws CVT cells)."""
+        if self.kind == "grid":
+            return passive_archive("grid", grid_shape=self.grid_shape, low=self.low, high=self.high)
+        from qdrl.algorithms.qd import cvt_cells  # the CVT cells of a QD run of this seed
+
+        low, high = tuple(map(float, self.low)), tuple(map(float, self.high))
+        with jax.ensure_compile_time_eval():  # k-means on concrete arrays, also inside a traced init
+            centroids = cvt_cells(seed, self.num_centroids, self.cvt_samples, low, high, self.kmeans_iters)
+        return passive_archive("cvt", centroids=centroids)
 
     def check_size(self, descriptor_size: int, where: str) -> None:
-        """Refuses a grid of another dimension than the state descriptor of `where`."""
-        if len(self.grid_shape) != descriptor_size:
+        """Refuses an archive of another dimension than the state descriptor of `where`."""
+        if self.num_dims != descriptor_size:
+            key = "archive.grid_shape" if self.kind == "grid" else "archive.low"
+            given = list(self.grid_shape) if self.kind == "grid" else list(self.low)
             raise ConfigError(
-                f"archive.grid_shape: expected {descriptor_size} entries (the state "
-                f"descriptor size of {where!r}), got {list(self.grid_shape)}"
+                f"{key}: expected {descriptor_size} entries (the state "
+                f"descriptor size of {where!r}), got {given}"
             )
 
 
@@ -151,9 +186,11 @@ def plot_archive(
     """The passive archive drawn into plots/archive.png; with the run's `rows`, also the
     one-figure summary plots/summary.png (evaluation return, archive, losses, every metric)."""
     archive = jax.device_get(archive)
+    vmin, vmax = config.fitness_range if config.fitness_range is not None else (None, None)
     plotting.plot_repertoire(
         archive, out_dir / "plots" / "archive.png", config.low, config.high,
         title=f"{title}: passive archive ({config.descriptor} descriptor)", labels=labels,
+        vmin=vmin, vmax=vmax,
     )
     if rows:
         plotting.plot_rl_summary(
@@ -204,14 +241,14 @@ def _build(sections: Sections, ctx: BuildContext, agent_name: str) -> Algorithm:
     title = f"{ctx.algorithm} on {env_cfg.name}"
 
     def init(key: jax.Array) -> RLState:
-        return RLState(trainer.init(key), archive_cfg.empty())
+        return RLState(trainer.init(key), archive_cfg.empty(ctx.seed))
 
     def chunk(state: RLState) -> tuple[RLState, dict[str, Any]]:
         """Train for one log interval, evaluate, and offer the episodes to the archive."""
         train, metrics = trainer.run_chunk(state.train)
         ev = trainer.evaluate(train.agent, eval_key_at(train.env_steps))
         desc = ev["eval_final_desc"] if archive_cfg.descriptor == "final" else ev["eval_mean_desc"]
-        archive, qd = feed(state.archive, desc, ev["eval_returns"], archive_cfg.qd_offset)
+        archive, qd = feed(state.archive, desc, ev["eval_returns"], archive_cfg.qd_offset, archive_cfg.fitness_range)
         out = dict(metrics)
         out.update({k: ev[k] for k in EVAL_KEYS})
         out.update(qd)

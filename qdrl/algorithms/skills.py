@@ -93,7 +93,9 @@ __all__ = [
 # The QD tasks (`qdrl.tasks`) a skill-discovery run can use: their environment,
 # reward, episode descriptor, bounds and QD offset measure skills and QD algorithms
 # on one scale.
-SKILL_TASKS: tuple[str, ...] = ("point_maze", "ant_omni", "ant_trap", "ant_maze", "halfcheetah_uni")
+SKILL_TASKS: tuple[str, ...] = (
+    "point_maze", "ant_omni", "ant_trap", "ant_maze", "ant_uni", "halfcheetah_uni", "walker2d_uni",
+)
 SkillTaskName = Annotated[str, OneOf(lambda: SKILL_TASKS)]
 # The skill model's metric on the progress bar: its value at the evaluation episodes' last step.
 _MODEL_METRIC = {DIAYNConfig: "discriminator_accuracy", DADSConfig: "dynamics_log_likelihood"}
@@ -239,14 +241,14 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         return evaluate_skills(sd, agent_state, key, num_eval, archive_cfg.descriptor, archive_cfg.low, archive_cfg.high)
 
     def init(key: jax.Array) -> RLState:
-        return RLState(trainer.init(key), archive_cfg.empty())
+        return RLState(trainer.init(key), archive_cfg.empty(ctx.seed))
 
     def chunk(state: RLState) -> tuple[RLState, dict[str, Any]]:
         """Train for one log interval, evaluate every skill, and offer the episodes to the archive."""
         train, metrics = trainer.run_chunk(state.train)
         ev = evaluate(train.agent, jax.random.fold_in(key0, train.env_steps))
         descriptors, returns = ev.pop("descriptors"), ev.pop("returns")
-        archive, qd = feed(state.archive, descriptors, returns, archive_cfg.qd_offset)
+        archive, qd = feed(state.archive, descriptors, returns, archive_cfg.qd_offset, archive_cfg.fitness_range)
         out: dict[str, Any] = dict(metrics)
         out.update(ev)
         out.update(qd)

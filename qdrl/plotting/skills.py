@@ -17,7 +17,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Polygon
 
 from qdrl.plotting._common import FigT, _names, _panels
-from qdrl.plotting.repertoires import _draw_grid
+from qdrl.plotting.repertoires import _draw_grid, _draw_repertoire
 
 __all__ = ["LEGEND_MAX", "Wall", "draw_walls", "env_walls", "plot_skills", "skill_colours"]
 
@@ -198,7 +198,7 @@ def plot_skills(
       path: PNG to write (its directory is created), or None.
       low, high: descriptor bounds: the archive's extent, and the paths' axes with
         `bounds="task"`.
-      archive: a grid passive archive (`fitnesses`, `grid_shape`), or None.
+      archive: a grid or CVT passive archive (`fitnesses` and `grid_shape` or `centroids`), or None.
       title: the figure title; with `ax`, the panel's title in place of its default.
       trajectories_are_positions: see above.
       dims: the two descriptor dimensions shown.
@@ -297,10 +297,13 @@ def plot_skills(
             fitnesses = np.asarray(archive.fitnesses, dtype=np.float64)
             shown = fitnesses[np.isfinite(fitnesses)]
             heat = Normalize(*(shown.min(), shown.max()) if shown.size else (0.0, 1.0))
-            mesh = _draw_grid(
-                axes[-1], fitnesses, archive.grid_shape, (dx, dy), low, high,
-                colormaps["viridis"].with_extremes(bad="white"), heat,
-            )
+            colours = colormaps["viridis"].with_extremes(bad="white")
+            mesh: Any
+            if getattr(archive, "grid_shape", None) is not None:
+                mesh = _draw_grid(axes[-1], fitnesses, archive.grid_shape, (dx, dy), low, high, colours, heat)
+            else:  # CVT cells
+                _draw_repertoire(axes[-1], archive, low, high, (dx, dy), heat, colours, names)
+                mesh = ScalarMappable(norm=heat, cmap=colours)
             if trajectories_are_positions:
                 draw_walls(axes[-1], walls, (dx, dy))
             filled = int(np.sum(fitnesses > -np.inf))

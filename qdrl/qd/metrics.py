@@ -12,7 +12,7 @@ import jax.numpy as jnp
 
 from qdrl.types import Array
 
-__all__ = ["qd_metrics"]
+__all__ = ["qd_metrics", "range_qd_score"]
 
 
 def qd_metrics(repertoire: Any, qd_offset: float) -> dict[str, Array]:
@@ -48,3 +48,20 @@ def qd_metrics(repertoire: Any, qd_offset: float) -> dict[str, Array]:
         "normalised_qd_score": (total - qd_offset * num_elites.astype(jnp.float32))
         / fitnesses.shape[0],
     }
+
+
+def range_qd_score(repertoire: Any, fitness_range: tuple[float, float]) -> Array:
+    """The QD score on a fixed scale: each filled cell's fitness clipped to `fitness_range`
+    = (min, max) and mapped to [0, 1], summed and divided by the number of cells; jittable.
+
+    1.0 is every cell filled with a fitness of at least `max`. The fitness ranges of
+    Chalumeau, Boige et al. 2023 (the skill-discovery benchmark's `fitness_range`, also the
+    colour scale of its archive figures) put every method of one task on this scale.
+    """
+    lo, hi = float(fitness_range[0]), float(fitness_range[1])
+    if not lo < hi:
+        raise ValueError(f"fitness_range: expected (min, max) with min < max, got {fitness_range}")
+    fitnesses = jnp.asarray(repertoire.fitnesses, jnp.float32)
+    filled = fitnesses > -jnp.inf
+    scaled = jnp.clip((fitnesses - lo) / (hi - lo), 0.0, 1.0)
+    return jnp.sum(jnp.where(filled, scaled, 0.0)) / fitnesses.shape[0]

@@ -55,7 +55,7 @@ from collections.abc import Sequence
 from qdrl.config import PositiveInt
 from qdrl.envs.brax import FEET_NAMES, Backend, BraxEnv
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, EpisodeDescriptor, policy_task
+from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, Activation, EpisodeDescriptor, policy_task
 
 # QDax `reward_offset` (qdax/tasks/brax/v2/__init__.py; anttrap and antmaze from
 # qdax/environments/__init__.py).
@@ -98,6 +98,7 @@ def brax_policy_task(
     policy_hidden: Sequence[int] = (64, 64),
     eval_batch: int = DEFAULT_EVAL_BATCH,
     descriptor_names: Sequence[str] = (),
+    policy_activation: str = "tanh",
 ) -> Task:
     """A `Task` whose genotypes are policies acting in `env` for one episode each.
 
@@ -107,13 +108,13 @@ def brax_policy_task(
     """
     return policy_task(
         name, env, descriptor, descriptor_low, descriptor_high, qd_offset, policy_hidden,
-        eval_batch=eval_batch, descriptor_names=descriptor_names,
+        eval_batch=eval_batch, descriptor_names=descriptor_names, policy_activation=policy_activation,
     )
 
 
 def _uni(
     task: str, robot: str, episode_length: int, backend: str, policy_hidden: Sequence[int],
-    eval_batch: int,
+    eval_batch: int, policy_activation: str,
 ) -> Task:
     env = BraxEnv(robot, backend, episode_length, state_descriptor="feet_contact")
     n_feet = env.descriptor_size
@@ -127,17 +128,18 @@ def _uni(
         policy_hidden,
         eval_batch,
         FEET_NAMES[robot],
+        policy_activation,
     )
 
 
 def _omni(
     task: str, robot: str, episode_length: int, backend: str, policy_hidden: Sequence[int],
-    eval_batch: int,
+    eval_batch: int, policy_activation: str,
 ) -> Task:
     env = BraxEnv(robot, backend, episode_length, state_descriptor="xy", reward="no_forward")
     return brax_policy_task(
         task, env, "final", *OMNI_BOUNDS, -REWARD_OFFSETS[task] * episode_length, policy_hidden,
-        eval_batch, FINAL_XY_NAMES,
+        eval_batch, FINAL_XY_NAMES, policy_activation,
     )
 
 
@@ -146,6 +148,7 @@ def ant_uni(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """Ant, feet-contact rates of its 4 feet in [0, 1]^4; fitness = brax's ant reward summed.
 
@@ -153,7 +156,7 @@ def ant_uni(
     cost is 0). The episode terminates when the torso leaves z in [0.2, 1].
     Default backend spring (fastest; QDax's default).
     """
-    return _uni("ant_uni", "ant", episode_length, backend, policy_hidden, eval_batch)
+    return _uni("ant_uni", "ant", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
 def halfcheetah_uni(
@@ -161,6 +164,7 @@ def halfcheetah_uni(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """HalfCheetah, feet-contact rates (back foot, front foot) in [0, 1]^2; fitness = its reward.
 
@@ -168,7 +172,7 @@ def halfcheetah_uni(
     backend spring (halfcheetah on mjx with brax's default solver is several times
     slower).
     """
-    return _uni("halfcheetah_uni", "halfcheetah", episode_length, backend, policy_hidden, eval_batch)
+    return _uni("halfcheetah_uni", "halfcheetah", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
 def walker2d_uni(
@@ -176,13 +180,14 @@ def walker2d_uni(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """Walker2d, feet-contact rates (right foot, left foot) in [0, 1]^2; fitness = its reward.
 
     Reward per step: forward velocity + 1 (survival) - 0.001 |a|^2; terminates
     when the torso falls or tilts. Default backend spring (fastest).
     """
-    return _uni("walker2d_uni", "walker2d", episode_length, backend, policy_hidden, eval_batch)
+    return _uni("walker2d_uni", "walker2d", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
 def hopper_uni(
@@ -190,13 +195,14 @@ def hopper_uni(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """Hopper, contact rate of its foot in [0, 1]; fitness = its reward.
 
     Reward per step: forward velocity + 1 (survival) - 0.001 |a|^2; terminates
     when unhealthy. Default backend spring (fastest).
     """
-    return _uni("hopper_uni", "hopper", episode_length, backend, policy_hidden, eval_batch)
+    return _uni("hopper_uni", "hopper", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
 def humanoid_uni(
@@ -204,6 +210,7 @@ def humanoid_uni(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """Humanoid, contact rates of its feet (right, left; the shin links) in [0, 1]^2.
 
@@ -211,7 +218,7 @@ def humanoid_uni(
     + 5 (survival) - 0.1 |ctrl|^2; terminates when the torso leaves z in [1, 2].
     Default backend spring (fastest; QDax's default).
     """
-    return _uni("humanoid_uni", "humanoid", episode_length, backend, policy_hidden, eval_batch)
+    return _uni("humanoid_uni", "humanoid", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
 def ant_omni(
@@ -219,13 +226,14 @@ def ant_omni(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """Ant, final torso x-y in [-30, 30]^2; fitness = survival - control cost (no forward term).
 
     Reward per step: brax's ant reward minus its `reward_forward` metric, i.e.
     1 - 0.5 |a|^2. Default backend spring (fastest; QDax's default).
     """
-    return _omni("ant_omni", "ant", episode_length, backend, policy_hidden, eval_batch)
+    return _omni("ant_omni", "ant", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
 def humanoid_omni(
@@ -233,13 +241,14 @@ def humanoid_omni(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """Humanoid, final torso x-y in [-30, 30]^2; fitness = survival - control cost.
 
     Reward per step: brax's humanoid reward minus its `reward_linvel` metric, i.e.
     5 - 0.1 |ctrl|^2. Default backend spring (fastest; QDax's default).
     """
-    return _omni("humanoid_omni", "humanoid", episode_length, backend, policy_hidden, eval_batch)
+    return _omni("humanoid_omni", "humanoid", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
 def ant_trap(
@@ -247,6 +256,7 @@ def ant_trap(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """QDax's AntTrap: final torso x-y in [0, 30] x [-8, 8]; fitness = the ant's reward.
 
@@ -265,6 +275,7 @@ def ant_trap(
         policy_hidden,
         eval_batch,
         FINAL_XY_NAMES,
+        policy_activation,
     )
 
 
@@ -273,6 +284,7 @@ def ant_maze(
     backend: Backend = DEFAULT_BACKEND,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """QDax's AntMaze: final torso x-y in [-5, 40]^2; fitness = -sum over steps of the distance to the target.
 
@@ -291,6 +303,7 @@ def ant_maze(
         policy_hidden,
         eval_batch,
         FINAL_XY_NAMES,
+        policy_activation,
     )
 
 

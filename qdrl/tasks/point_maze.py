@@ -15,13 +15,14 @@ import math
 from qdrl.config import PositiveInt
 from qdrl.envs.point_maze import PointMazeEnv
 from qdrl.tasks.base import Task
-from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, policy_task
+from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, Activation, policy_task
 
 
 def point_maze(
     episode_length: PositiveInt = 100,
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
 ) -> Task:
     """Point maze with MLP policies (QDax `pointmaze`): fitness = return, descriptor = final x-y.
 
@@ -37,6 +38,7 @@ def point_maze(
         (1.0, 1.0),
         qd_offset=-2.0 * math.sqrt(2.0) * episode_length,
         policy_hidden=policy_hidden,
+        policy_activation=policy_activation,
         clip_descriptors=False,
         eval_batch=eval_batch,
         descriptor_names=("final x", "final y"),

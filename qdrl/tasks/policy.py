@@ -28,13 +28,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import haiku as hk
 import jax
 import jax.numpy as jnp
 
 from qdrl import nets
+from qdrl.config import OneOf
 from qdrl.envs.base import Env
 from qdrl.qd.base import Evaluation, ScoringFn
 from qdrl.rollout import Episodes, RecordFn, fixed_start_state, run_episodes
@@ -46,9 +47,13 @@ EpisodeDescriptor = Literal["final", "mean"]
 # Episodes rolled out together when a task is built without the run's batch size.
 DEFAULT_EVAL_BATCH = 64
 
+# A policy's hidden activation, as a task parameter (`policy_activation`): tanh in qdrl's QD-RL
+# specs, relu in QDax's MLP default (the skill-discovery benchmark's policies).
+Activation = Annotated[str, OneOf(lambda: sorted(nets.ACTIVATIONS))]
+
 
 def policy_network(action_size: int, hidden: Sequence[int] = (64, 64), act: str = "tanh") -> hk.Transformed:
-    """The QD-RL literature's policy: a 64x64 tanh MLP, tanh output, lecun-uniform init (QDax)."""
+    """The QD-RL literature's policy: a 64x64 MLP (hidden activation `act`), tanh output, lecun-uniform init (QDax)."""
     return nets.deterministic_policy(action_size, hidden, act, init="lecun_uniform")
 
 
@@ -228,6 +233,7 @@ def policy_task(
     objectives: RecordFn | None = None,
     reference_point: Sequence[float] | None = None,
     descriptor_names: Sequence[str] = (),
+    policy_activation: str = "tanh",
 ) -> Task:
     """A `Task` whose genotypes are MLP policies acting in `env` for one episode each.
 
@@ -248,7 +254,7 @@ def policy_task(
             f"{name}: descriptor bounds of shape {low.shape} and {high.shape} for "
             f"a state descriptor of size {env.descriptor_size}"
         )
-    network = policy_network(env.action_size, tuple(int(h) for h in policy_hidden))
+    network = policy_network(env.action_size, tuple(int(h) for h in policy_hidden), policy_activation)
     obs_size = env.observation_size
     # Zeros of the right shapes: an actual un-jitted init costs seconds on a CPU.
     shapes = jax.eval_shape(lambda k: init_policies(network, obs_size, k, 1), jax.random.PRNGKey(0))

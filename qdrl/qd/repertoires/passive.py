@@ -17,7 +17,7 @@ from typing import Literal, TypeVar
 
 import numpy as np
 
-from qdrl.qd.metrics import qd_metrics
+from qdrl.qd.metrics import qd_metrics, range_qd_score
 from qdrl.qd.repertoires.cells import CellRepertoire, cvt_repertoire, grid_repertoire
 from qdrl.qd.repertoires.unstructured import UnstructuredRepertoire
 from qdrl.types import Array, Descriptor, Fitness
@@ -68,14 +68,19 @@ def observe(archive: _Archive, descriptors: Descriptor, fitnesses: Fitness) -> _
 
 
 def feed(
-    archive: CellRepertoire, descriptors: Descriptor, returns: Fitness, qd_offset: float
+    archive: CellRepertoire, descriptors: Descriptor, returns: Fitness, qd_offset: float,
+    fitness_range: tuple[float, float] | None = None,
 ) -> tuple[CellRepertoire, dict[str, Array]]:
     """The passive archive after offering it evaluated episodes, and its QD metrics; jittable.
 
     `descriptors` (..., D) and `returns` (...) with the same leading axes (episodes, or
-    members x episodes); every RL, PBT and skill-discovery run measures itself so.
+    members x episodes); every RL, PBT and skill-discovery run measures itself so. With
+    `fitness_range`, the metrics add `range_qd_score` (`qdrl.qd.metrics.range_qd_score`).
     """
     archive = observe(
         archive, descriptors.reshape((-1, descriptors.shape[-1])), returns.reshape((-1,))
     )
-    return archive, qd_metrics(archive, qd_offset)
+    metrics = qd_metrics(archive, qd_offset)
+    if fitness_range is not None:
+        metrics["range_qd_score"] = range_qd_score(archive, fitness_range)
+    return archive, metrics

@@ -1,0 +1,132 @@
+"""`qdrl suite`: specs x tasks x seeds under one budget, resumed where they stopped; bad suites
+refused before anything compiles."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from qdrl import report, suites
+from qdrl.cli import main
+from qdrl.config import ConfigError, dump_toml
+
+ME = {
+    "experiment": {"algorithm": "map_elites", "name": "map_elites"},
+    "task": {"name": "point_maze", "episode_length": 20, "policy_hidden": [8], "policy_activation": "relu"},
+    "repertoire": {"kind": "grid", "grid_shape": [8, 8], "fitness_range": [-50.0, 0.0]},
+    "emitter": {"kind": "isoline", "batch_size": 8},
+    "qd": {"num_iterations": 8, "log_every": 2, "init_batch_size": 8},
+    "log": {"progress": False},
+}
+DIAYN = {
+    "experiment": {"algorithm": "diayn", "name": "diayn"},
+    "env": {"task": "point_maze", "episode_length": 20},
+    "agent": {"hidden": [16, 16]},
+    "train": {"total_env_steps": 1280, "num_envs": 4, "batch_size": 32, "buffer_size": 2000,
+              "learning_starts": 80, "grad_steps_per_iter": 2, "eval_every": 320, "num_eval_envs": 8},
+    "skills": {"num_skills": 4, "hidden": [16, 16]},
+    # the CVT passive archive of the benchmark's skill runs, on the study's fitness scale
+    "archive": {"kind": "cvt", "num_centroids": 32, "cvt_samples": 1000, "fitness_range": [-50.0, 0.0]},
+    "log": {"progress": False},
+}
+
+
+def write_suite(tmp: Path, budget: str, algorithms: str = '["map_elites", "diayn"]', extra: str = "") -> Path:
+    for spec in (ME, DIAYN):
+        (tmp / f"{spec['experiment']['name']}_point_maze.toml").write_text(dump_toml(spec))
+    path = tmp / "tiny.toml"
+    path.write_text(
+        f'[suite]\nname = "tiny"\nseeds = [0]\n{budget}\n\n[[runs]]\nspecs = "{tmp}/{{algorithm}}_{{task}}.toml"\n'
+        f'algorithms = {algorithms}\ntasks = ["point_maze"]\n{extra}'
+    )
+    return path
+
+
+def test_a_suite_runs_to_its_budget_says_so_and_a_larger_budget_resumes_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    path = write_suite(tmp_path, "env_steps = 600")
+    assert main(["suite", "status", str(path), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == f"0 done, 0 partial, 2 not started; in {out}"
+    assert main(["suite", "run", str(path), "--out", str(out)]) == 0
+    status = json.loads(capsys.readouterr().out)
+    assert status["counts"] == {"done": 2, "partial": 0, "not started": 0}
+    for algorithm in ("map_elites", "diayn"):
+        run = out / "point_maze" / algorithm / "seed_0"
+        summary = json.loads((run / "summary.json").read_text())
+        # stopped at the first log point at or past 600 environment steps, before its length
+        assert summary["stopped_by"] == "env_steps_limit" and summary["env_steps_limit"] == 600
+        assert 600 <= summary["env_steps"] < 1280 and summary["log_points"] < summary["num_log_points"]
+        assert "range_qd_score" in summary and 0.0 <= summary["range_qd_score"] <= 1.0
+    assert json.loads((out / "suite.json").read_text())["budget"] == {"time_limit_s": None, "env_steps": 600}
+    # Run again: nothing to do.
+    assert main(["suite", "run", str(path), "--out", str(out)]) == 0
+    assert "2 of 2 runs done, 0 to run" in capsys.readouterr().err
+    # A larger budget: both are behind it and resume from their checkpoints to the new one.
+    path = write_suite(tmp_path, "env_steps = 2000")
+    assert main(["suite", "status", str(path), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == f"0 done, 2 partial, 0 not started; in {out}"
+    # A killed suite: the skill run's summary is gone (it died mid-run), its checkpoints stay.
+    assert main(["suite", "run", str(path), "--out", str(out)]) == 0
+    status = json.loads(capsys.readouterr().out)
+    assert status["counts"]["done"] == 2
+    diayn = json.loads((out / "point_maze" / "diayn" / "seed_0" / "summary.json").read_text())
+    assert "stopped_by" not in diayn and diayn["env_steps"] == 1280  # its whole length: under the budget
+    rows = (out / "point_maze" / "diayn" / "seed_0" / "metrics.csv").read_text().splitlines()
+    assert len(rows) == 1 + 4  # the first session's log points kept, the rest appended
+    # The report over the suite's folder: both algorithms on the task, steps per hour.
+    result = report.report([out], tmp_path / "report")
+    assert result["groups"]["point_maze"]["labels"] == {"diayn": [0], "map_elites": [0]}
+    speed = {r["spec"]: r for r in csv.DictReader(Path(result["throughput"]).read_text().splitlines())}
+    assert set(speed) == {"diayn", "map_elites"} and float(speed["diayn"]["env_steps"]) == 1280
+    for r in speed.values():
+        assert float(r["env_steps_per_hour_run"]) >= float(r["env_steps_per_hour"]) > 0  # compile excluded
+    assert "env steps per hour" in Path(result["table"]).read_text()
+
+
+@pytest.mark.parametrize(
+    ("budget", "algorithms", "extra", "message"),
+    [
+        ("env_steps = 0", None, "", r"suite\.env_steps: expected a positive integer"),
+        ("time_limit_s = -5", None, "", r"suite\.time_limit_s: expected a number > 0"),
+        ("seeds_typo = 1", None, "", r"suite\.seeds_typo: unknown key"),
+        ("", '["map_elites", "nope"]', "", r"runs\[0\]\.specs: nope on point_maze: spec file .*nope_point_maze\.toml. not found"),
+        ("", '["map_elites", "map_elites"]', "", r"runs\[0\]: map_elites on point_maze is listed twice"),
+        ("", None, "[other]\nx = 1\n", r"other: expected the sections \[suite\] and \[\[runs\]\]"),
+    ],
+)
+def test_a_bad_suite_is_refused_with_the_key_before_anything_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], budget: str, algorithms: str | None, extra: str, message: str
+) -> None:
+    path = write_suite(tmp_path, budget, algorithms or '["map_elites", "diayn"]', extra)
+    assert main(["suite", "run", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("qdrl: error: ") and len(err.strip().splitlines()) == 1
+    assert __import__("re").search(message, err), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_spec_of_another_task_or_a_bad_value_is_named(tmp_path: Path) -> None:
+    path = write_suite(tmp_path, "")
+    text = path.read_text().replace('tasks = ["point_maze"]', 'tasks = ["point_maze"]\n')
+    (tmp_path / "diayn_point_maze.toml").write_text(dump_toml({**DIAYN, "env": {**DIAYN["env"], "task": "ant_omni"}}))
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=r"diayn on point_maze runs on 'ant_omni'; expected a spec of the task 'point_maze'"):
+        suites.load_suite(path, tmp_path / "out")
+    (tmp_path / "diayn_point_maze.toml").write_text(dump_toml({**DIAYN, "train": {**DIAYN["train"], "num_envs": 0}}))
+    with pytest.raises(ConfigError, match=r"diayn_point_maze\.toml \(diayn on point_maze\): train\.num_envs: expected a positive integer"):
+        suites.load_suite(path, tmp_path / "out")
+
+
+def test_the_packaged_suites_name_only_specs_that_exist() -> None:
+    assert suites.suite_names() == ["seed_benchmark", "seed_benchmark_cpu"]
+    full, cpu = suites.load_suite("seed_benchmark"), suites.load_suite("seed_benchmark_cpu")
+    assert len(full.entries) == 8 * 7 * 5 and len(cpu.entries) == (3 * 7 + 3 * 2) * 2
+    assert cpu.config.time_limit_s == 600 and full.config.time_limit_s is None  # the specs' own budgets
+    assert {e.spec.parent.name for e in cpu.entries} == {"seed_benchmark"}
+    with pytest.raises(ConfigError, match="close names: seed_benchmark_cpu"):
+        suites.resolve_suite("seed_benchmark_cp")
