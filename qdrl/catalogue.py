@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from qdrl import specs
+from qdrl import specs, suites
 from qdrl.algorithms import ALGORITHMS
 from qdrl.envs import PURE_JAX_ENVS
 from qdrl.envs.brax import BACKENDS, brax_env_names
@@ -101,6 +101,16 @@ def listing() -> str:
     width = max((len(n) for n in names), default=0)
     described = spec_lines([directory / f"{name}.toml" for name in names]) if directory is not None else {}
     lines.extend(f"  {name:<{width}}  {described[name]}" for name in names)
+    for folder in specs.SPEC_FOLDERS:
+        inside = specs.spec_names(folder)
+        if inside:
+            lines.append(
+                f"  {folder}/  {len(inside)} specs of the skill-discovery benchmark (Chalumeau, Boige et al. "
+                f"2023): <algorithm>_<task>[_cpu], e.g. {inside[0]}"
+            )
+    names_of_suites = suites.suite_names()
+    if names_of_suites:
+        lines.append(f"suites (qdrl suite run NAME): {', '.join(names_of_suites)}")
     lines.append("algorithms:")
     width = max(len(n) for n in ALGORITHMS)
     lines.extend(f"  {n:<{width}}  {ALGORITHMS[n].description}".rstrip() for n in sorted(ALGORITHMS))

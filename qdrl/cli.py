@@ -13,7 +13,7 @@ import time
 import traceback
 from pathlib import Path
 
-from qdrl import quiet, spec_schema, specs
+from qdrl import adapt, quiet, spec_schema, specs
 from qdrl.config import ConfigError
 
 
@@ -176,7 +176,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_suite(args: argparse.Namespace) -> int:
-    from qdrl import suites  # jax-free until a spec is checked
+    from qdrl import experiment, suites  # jax and the algorithms: the specs are checked in full
 
     try:
         with contextlib.redirect_stdout(sys.stderr):
@@ -194,8 +194,6 @@ def _cmd_suite(args: argparse.Namespace) -> int:
         c = status["counts"]
         print(f"{c['done']} done, {c['partial']} partial, {c['not started']} not started; in {suite.out}")
         return 0
-    from qdrl import experiment
-
     try:
         with contextlib.redirect_stdout(sys.stderr):
             status = suites.run_suite(suite, on_start=_writing)
@@ -271,6 +269,8 @@ def main(argv: list[str] | None = None) -> int:
     p_suite.add_argument("file", help="a suite file, or a packaged suite's name (seed_benchmark, seed_benchmark_cpu)")
     p_suite.add_argument("--out", default=None, help="output directory (default: runs/<suite name>)")
     p_suite.set_defaults(fn=_cmd_suite)
+
+    adapt.add_parser(sub)  # qdrl/adapt.py: its checks answer before jax is imported
 
     p_list = sub.add_parser("list", help="list specs, algorithms and tasks")
     p_list.set_defaults(fn=_cmd_list)

@@ -35,8 +35,10 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from qdrl import specs
+from qdrl import checkpoint, specs
 from qdrl.config import ConfigError, PositiveFloat, PositiveInt, build, check_table, load_toml
+from qdrl.experiment import check_spec, run
+from qdrl.sweeps import finished_as_given
 
 __all__ = ["Entry", "Suite", "entry_status", "load_suite", "resolve_suite", "run_suite", "suite_names", "suite_status"]
 
@@ -170,8 +172,6 @@ def load_suite(suite: str | Path, out_dir: str | Path | None = None, check: bool
                     overrides = (f"experiment.seed={seed}", *budget)
                     entries.append(Entry(task, algorithm, seed, spec_path, out / task / algorithm / f"seed_{seed}", overrides))
     if check:
-        from qdrl.experiment import check_spec  # the full check: imports jax and the algorithms
-
         for entry in entries[:: len(config.seeds)]:  # one check per spec: the seeds differ in the seed only
             spec = specs.load_spec(entry.spec, list(entry.overrides))
             task = _task_of(spec)
@@ -191,9 +191,6 @@ def entry_status(entry: Entry) -> dict[str, Any]:
     """Where one run stands: "done" (finished, or stopped at the suite's budget, with these
     settings), "partial" (checkpoints, not done: `run` resumes it) or "not started"; with its
     environment steps and wall time so far."""
-    from qdrl import checkpoint
-    from qdrl.sweeps import finished_as_given
-
     spec = specs.load_spec(entry.spec, list(entry.overrides))
     out: dict[str, Any] = {"task": entry.task, "algorithm": entry.algorithm, "seed": entry.seed, "dir": str(entry.out)}
     summary = finished_as_given(entry.out, spec)
@@ -231,9 +228,6 @@ def run_suite(suite: Suite, on_start: Callable[[Path], None] | None = None) -> d
     """Runs every run of `suite` that is not done, one after the other (see the module
     docstring); returns `suite_status` after the last. RunInterrupted propagates (Ctrl-C):
     the next call resumes from the run's checkpoint."""
-    from qdrl import checkpoint
-    from qdrl.experiment import run
-
     todo = [(e, entry_status(e)) for e in suite.entries]
     left = [(e, s) for e, s in todo if s["status"] != "done"]
     print(

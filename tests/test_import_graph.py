@@ -9,8 +9,9 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "qdrl"
 # Imports inside functions: optional dependencies and a measured start-up cost (the CLI's,
-# `import qdrl`'s, the environments' registry, matplotlib), at most this many in the package.
-MAX_LOCAL_IMPORTS = 20
+# `import qdrl`'s, `qdrl adapt`'s checks before jax, the environments' registry, matplotlib), at most
+# this many in the package.
+MAX_LOCAL_IMPORTS = 22
 
 
 def _module_name(path: Path) -> str:

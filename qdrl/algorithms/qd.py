@@ -90,7 +90,7 @@ from qdrl.qd.map_elites import MapElites, qd_state_axes
 from qdrl.qd.metrics import qd_metrics, range_qd_score
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, write_csv
-from qdrl.qd.repertoires.cvt import cvt_centroids
+from qdrl.qd.repertoires.cvt import cvt_cells
 from qdrl.tasks import TASKS, Task
 from qdrl.types import Array
 
@@ -528,17 +528,6 @@ def check_repertoire(repertoire: RepertoireConfig, task: Task) -> None:
             f"repertoire.grid_shape: expected {dim} entries (the descriptor size of task "
             f"{task.name!r}), got {list(repertoire.grid_shape)}"
         )
-
-
-@functools.lru_cache(maxsize=8)
-def cvt_cells(
-    seed: int, num_centroids: int, samples: int, low: tuple[float, ...], high: tuple[float, ...], iters: int
-) -> np.ndarray:
-    """The CVT cells (k-means centroids, host array) of a run of seed `seed`: the first of three
-    keys split from the seed's, as the cells of every CVT run since qdrl 0.1. Kept for the
-    process, so the seeds of a sweep that share `repertoire.cvt_seed` compute them once."""
-    key = jax.random.split(jax.random.PRNGKey(seed), 3)[0]
-    return np.asarray(cvt_centroids(key, num_centroids, samples, low, high, num_iters=iters))
 
 
 def make_repertoire(config: RepertoireConfig, task: Task, example: Any, seed: int | None, centroids: Any = None) -> Any:

@@ -37,6 +37,7 @@ from qdrl.envs.brax import STATE_DESCRIPTORS, Backend
 from qdrl.off_policy import STATE_AXES, TrainConfig, TrainState, make_trainer
 from qdrl.placement import check_divisible
 from qdrl.qd.repertoires import CellRepertoire, export_npz, passive_archive, write_csv
+from qdrl.qd.repertoires.cvt import cvt_cells
 from qdrl.qd.repertoires.passive import feed
 from qdrl.rollout import Episodes
 from qdrl.types import Array, PRNGKey
@@ -118,10 +119,9 @@ class ArchiveConfig:
         """The empty passive archive of a run of seed `seed` (the seed only draws CVT cells)."""
         if self.kind == "grid":
             return passive_archive("grid", grid_shape=self.grid_shape, low=self.low, high=self.high)
-        from qdrl.algorithms.qd import cvt_cells  # the CVT cells of a QD run of this seed
-
         low, high = tuple(map(float, self.low)), tuple(map(float, self.high))
-        with jax.ensure_compile_time_eval():  # k-means on concrete arrays, also inside a traced init
+        # the CVT cells of a QD run of this seed; k-means on concrete arrays, also inside a traced init
+        with jax.ensure_compile_time_eval():
             centroids = cvt_cells(seed, self.num_centroids, self.cvt_samples, low, high, self.kmeans_iters)
         return passive_archive("cvt", centroids=centroids)
 

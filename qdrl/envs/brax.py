@@ -14,6 +14,7 @@ Besides brax's registry, two walled ant environments are available by name:
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Sequence
 from typing import Any, Literal, get_args
 
@@ -167,6 +168,26 @@ def no_forward_reward(name: str) -> RewardFn:
 REWARDS: dict[str, Callable[[str], RewardFn]] = {"no_forward": no_forward_reward}
 
 
+def scaled_system(sys: Any, gravity_scale: Array | float, gear_scale: Array | float) -> Any:
+    """`sys` with its gravity multiplied by `gravity_scale` () and each actuator's strength by
+    `gear_scale` (() or (num_actuators,)); jittable, so the scales may be traced.
+
+    Both of brax's copies are scaled: `gravity` and `actuator.gear`, which the spring,
+    positional and generalized pipelines read, and mjx's `opt.gravity` and
+    `actuator_gear[:, 0]`, which the mjx pipeline reads (brax's halfcheetah sets its own
+    gears for spring, so the two copies may differ; each is scaled by the same factors).
+    """
+    gravity_scale = jnp.asarray(gravity_scale, jnp.float32)
+    gear_scale = jnp.broadcast_to(jnp.asarray(gear_scale, jnp.float32), jnp.shape(sys.actuator.gear))
+    mjx_gear = jnp.asarray(sys.actuator_gear)
+    sys = sys.replace(
+        gravity=jnp.asarray(sys.gravity) * gravity_scale,
+        actuator=sys.actuator.replace(gear=jnp.asarray(sys.actuator.gear) * gear_scale),
+        actuator_gear=mjx_gear.at[:, 0].multiply(gear_scale.astype(mjx_gear.dtype)),
+    )
+    return sys.tree_replace({"opt.gravity": jnp.asarray(sys.opt.gravity) * gravity_scale})
+
+
 def brax_env_names() -> list[str]:
     """Names `BraxEnv` accepts: brax's environment registry and qdrl's walled ants."""
     return sorted([*_lib().envs._envs, *WALLED_ENVS])
@@ -263,3 +284,35 @@ class BraxEnv(Env):
         desc = self._descriptor(state.pipeline_state)
         reward = state.reward if self._reward is None else self._reward(state)
         return state, state.obs, reward, state.done, desc
+
+    # -- perturbed dynamics (qdrl.adapt) --
+
+    def actuator_index(self, joint: str) -> int:
+        """The index (in `sys.actuator`, and in the action) of the actuator that drives `joint`,
+        by the joint's name in the robot's MJCF (brax leaves most actuators unnamed)."""
+        model = self.brax_env.sys.mj_model
+        joints = [model.joint(int(model.actuator_trnid[i, 0])).name for i in range(model.nu)]
+        if joint not in joints:
+            raise ValueError(f"{self.name}: no actuator drives a joint {joint!r}; actuated joints: {joints}")
+        return joints.index(joint)
+
+    def perturbed(
+        self, gravity_scale: Array | float = 1.0, gear_scale: Array | float = 1.0, episode_length: int | None = None
+    ) -> BraxEnv:
+        """This environment with gravity and actuator strengths scaled (`scaled_system`), and
+        another time limit if `episode_length` is given; self is unchanged.
+
+        The scales may be traced: built inside a jitted (or vmapped) function, the new
+        environment's steps read the traced system, so one program serves every value.
+        A reset is unchanged: neither scale enters brax's reset.
+        """
+        brax_env = copy.copy(self.brax_env)
+        brax_env.sys = scaled_system(self.brax_env.sys, gravity_scale, gear_scale)
+        env = copy.copy(self)
+        env.brax_env = brax_env
+        env.__dict__.pop("_traced_resets", None)  # traced on the unperturbed system
+        if episode_length is not None:
+            if episode_length <= 0:
+                raise ValueError(f"episode_length must be a positive integer, got {episode_length}")
+            env.episode_length = int(episode_length)
+        return env

@@ -11,6 +11,7 @@ also uses; figures in docs/benchmarks.md).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from functools import partial
 
@@ -21,7 +22,7 @@ import numpy as np
 from qdrl.qd.repertoires.cells import as_bounds, nearest_centroid
 from qdrl.types import Array, PRNGKey
 
-__all__ = ["cvt_centroids", "nearest_centroid"]
+__all__ = ["cvt_cells", "cvt_centroids", "nearest_centroid"]
 
 
 def _kmeans_plus_plus(key: PRNGKey, points: Array, num_centroids: int) -> Array:
@@ -136,3 +137,14 @@ def cvt_centroids(
         num_samples=int(num_samples),
         num_iters=int(num_iters),
     )
+
+
+@functools.lru_cache(maxsize=8)
+def cvt_cells(
+    seed: int, num_centroids: int, samples: int, low: tuple[float, ...], high: tuple[float, ...], iters: int
+) -> np.ndarray:
+    """The CVT cells (k-means centroids, host array) of a run of seed `seed`: the first of three
+    keys split from the seed's, as the cells of every CVT run since qdrl 0.1. Kept for the
+    process, so the seeds of a sweep that share `repertoire.cvt_seed` compute them once."""
+    key = jax.random.split(jax.random.PRNGKey(seed), 3)[0]
+    return np.asarray(cvt_centroids(key, num_centroids, samples, low, high, num_iters=iters))
