@@ -22,6 +22,9 @@ everywhere (the env steps of a function task) is never an axis. It writes:
 - `throughput.csv`: per task and spec, the environment steps done and the steps per hour,
   of wall time (compilation included) and of run time (compilation excluded), means over
   seeds (the QDax paper's Table 2);
+- `<task>/adaptation.png` and `adaptation.csv`, where runs were adapted (`qdrl adapt`, their
+  `adaptation/adaptation.csv`): per perturbation set, each spec's best return among its
+  elites or skills against the multiplier, mean over the adapted seeds;
 - `report.md`: the headline metrics' table (mean ± std, IQM), the throughput table and the figures.
 """
 
@@ -228,6 +231,46 @@ def throughput(group: Group) -> list[dict[str, Any]]:
     return out
 
 
+def adaptation_curves(group: Group) -> dict[str, dict[str, list[tuple[float, float, int]]]]:
+    """Per perturbation set, per spec: (multiplier, mean best return over the adapted seeds,
+    seeds) from each run's adaptation/adaptation.csv (`qdrl adapt`); empty when none was adapted."""
+    found: dict[str, dict[str, dict[float, list[float]]]] = {}
+    for label, runs in group.runs.items():
+        for run in runs:
+            path = run.path / "adaptation" / "adaptation.csv"
+            if not path.is_file():
+                continue
+            with path.open(newline="") as f:
+                for row in csv.DictReader(f):
+                    values = found.setdefault(row["perturbation"], {}).setdefault(label, {})
+                    values.setdefault(float(row["value"]), []).append(float(row["best_return"]))
+    return {
+        name: {
+            label: [(v, float(np.mean(b)), len(b)) for v, b in sorted(by_value.items())]
+            for label, by_value in by_label.items()
+        }
+        for name, by_label in found.items()
+    }
+
+
+def _plot_adaptation(curves: Mapping[str, Mapping[str, Sequence[tuple[float, float, int]]]], path: Path, task: str) -> Path:
+    """One panel per perturbation set, a line per spec: best return against the multiplier."""
+    names = list(curves)
+    fig = plotting._new_figure(len(names))
+    axes = fig.subplots(1, len(names), squeeze=False)[0]
+    for ax, name in zip(axes, names, strict=True):
+        for label, points in curves[name].items():
+            ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", ms=3, label=label)
+        ax.set_xlabel(f"{name} multiplier")
+        ax.set_ylabel("best return (mean over seeds)")
+        ax.set_title(name)
+        ax.legend(fontsize="small")
+    fig.suptitle(f"{task}: adaptation to perturbed dynamics (best elite or skill)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    return path
+
+
 def _decimals(std: float, value: float) -> int:
     """Decimals that show two significant digits of `std` (of `value` when std is 0)."""
     scale = std if std > 0 and math.isfinite(std) else abs(value)
@@ -264,6 +307,7 @@ def report(
     result: dict[str, Any] = {"out": str(out), "groups": {}}
     csv_rows: list[dict[str, Any]] = []
     speed_rows: list[dict[str, Any]] = []
+    adapt_rows: list[dict[str, Any]] = []
     md = ["# Report", "", "Runs: " + ", ".join(f"`{p}`" for p in paths), ""]
     md += [
         f"Curves: mean over seeds, band: {confidence:.0%} percentile bootstrap interval over seeds "
@@ -316,6 +360,15 @@ def report(
         }
         speed = throughput(group)
         speed_rows.extend(speed)
+        curves = adaptation_curves(group)
+        adapt_path = None
+        if curves:
+            adapt_path = _plot_adaptation(curves, task_dir / "adaptation.png", group.task)
+            figures.append({"metric": "adaptation", "path": str(adapt_path), "x": ["multiplier"]})
+            adapt_rows.extend(
+                {"task": group.task, "perturbation": name, "spec": label, "value": v, "best_return": b, "seeds": n}
+                for name, by_label in curves.items() for label, points in by_label.items() for v, b, n in points
+            )
         md += _task_section(group, [r for r in csv_rows if r["task"] == group.task], figures, rep_path, out, speed)
 
     csv_path = out / "final.csv"
@@ -330,6 +383,12 @@ def report(
         writer = csv.DictWriter(f, fieldnames=speed_fields)
         writer.writeheader()
         writer.writerows(speed_rows)
+    if adapt_rows:
+        with (out / "adaptation.csv").open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=["task", "perturbation", "spec", "value", "best_return", "seeds"])
+            writer.writeheader()
+            writer.writerows(adapt_rows)
+        result["adaptation"] = str(out / "adaptation.csv")
     md_path = out / "report.md"
     md_path.write_text("\n".join(md) + "\n")
     result.update({"table": str(md_path), "csv": str(csv_path), "throughput": str(speed_path)})

@@ -171,3 +171,25 @@ def test_interquartile_mean_and_bootstrap_interval() -> None:
     np.testing.assert_array_equal(one[0], values[0])
     wide = bootstrap_ci(values, confidence=0.99)
     assert wide[0][0] <= low[0] and wide[1][0] >= high[0]
+
+
+def test_adapted_runs_are_compared_per_perturbation(tmp_path: Path) -> None:
+    """Runs with adaptation/adaptation.csv (`qdrl adapt`): each spec's best return per multiplier,
+    the mean over its adapted seeds, in adaptation.csv and one figure per task."""
+    for label, seeds in (("map_elites", (0, 1)), ("smerl_diayn", (0,))):
+        for seed in seeds:
+            run = fake_run(tmp_path / "runs" / label / f"seed_{seed}", label, "walker2d_uni", seed, rl_rows(1.0), rl=True)
+            (run / "adaptation").mkdir()
+            lines = ["perturbation,value,best_return,median_return,mean_return,num_policies"]
+            lines += [f"gravity,{v},{100.0 * v + seed},0,0,3" for v in (0.5, 1.0)]
+            lines += [f"actuator:foot_left_joint,{v},{-v},0,0,3" for v in (0.0, 1.0)]
+            (run / "adaptation" / "adaptation.csv").write_text("\n".join(lines) + "\n")
+    result = report([tmp_path / "runs"], tmp_path / "report")
+    rows = list(csv.DictReader((tmp_path / "report" / "adaptation.csv").read_text().splitlines()))
+    gravity = {(r["spec"], float(r["value"])): (float(r["best_return"]), int(r["seeds"])) for r in rows if r["perturbation"] == "gravity"}
+    assert gravity == {("map_elites", 0.5): (50.5, 2), ("map_elites", 1.0): (100.5, 2),
+                       ("smerl_diayn", 0.5): (50.0, 1), ("smerl_diayn", 1.0): (100.0, 1)}
+    assert {r["perturbation"] for r in rows} == {"gravity", "actuator:foot_left_joint"}
+    figures = result["groups"]["walker2d_uni"]["figures"]
+    assert any(f["metric"] == "adaptation" and Path(f["path"]).is_file() for f in figures)
+    assert "adaptation.png" in Path(result["table"]).read_text()
