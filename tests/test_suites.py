@@ -45,17 +45,22 @@ def write_suite(tmp: Path, budget: str, algorithms: str = '["map_elites", "diayn
     return path
 
 
+@pytest.mark.parametrize(
+    "algorithms",
+    [("map_elites",), pytest.param(("map_elites", "diayn"), marks=pytest.mark.slow)],  # a skill run: +25 s
+    ids=["map_elites", "map_elites+diayn"],
+)
 def test_a_suite_runs_to_its_budget_says_so_and_a_larger_budget_resumes_it(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], algorithms: tuple[str, ...]
 ) -> None:
-    out = tmp_path / "out"
-    path = write_suite(tmp_path, "env_steps = 600")
+    out, n, listed = tmp_path / "out", len(algorithms), json.dumps(list(algorithms))
+    path = write_suite(tmp_path, "env_steps = 600", listed)
     assert main(["suite", "status", str(path), "--out", str(out)]) == 0
-    assert capsys.readouterr().out.splitlines()[-1] == f"0 done, 0 partial, 2 not started; in {out}"
+    assert capsys.readouterr().out.splitlines()[-1] == f"0 done, 0 partial, {n} not started; in {out}"
     assert main(["suite", "run", str(path), "--out", str(out)]) == 0
     status = json.loads(capsys.readouterr().out)
-    assert status["counts"] == {"done": 2, "partial": 0, "not started": 0}
-    for algorithm in ("map_elites", "diayn"):
+    assert status["counts"] == {"done": n, "partial": 0, "not started": 0}
+    for algorithm in algorithms:
         run = out / "point_maze" / algorithm / "seed_0"
         summary = json.loads((run / "summary.json").read_text())
         # stopped at the first log point at or past 600 environment steps, before its length
@@ -65,24 +70,23 @@ def test_a_suite_runs_to_its_budget_says_so_and_a_larger_budget_resumes_it(
     assert json.loads((out / "suite.json").read_text())["budget"] == {"time_limit_s": None, "env_steps": 600}
     # Run again: nothing to do.
     assert main(["suite", "run", str(path), "--out", str(out)]) == 0
-    assert "2 of 2 runs done, 0 to run" in capsys.readouterr().err
+    assert f"{n} of {n} runs done, 0 to run" in capsys.readouterr().err
     # A larger budget: both are behind it and resume from their checkpoints to the new one.
-    path = write_suite(tmp_path, "env_steps = 2000")
+    path = write_suite(tmp_path, "env_steps = 2000", listed)
     assert main(["suite", "status", str(path), "--out", str(out)]) == 0
-    assert capsys.readouterr().out.splitlines()[-1] == f"0 done, 2 partial, 0 not started; in {out}"
-    # A killed suite: the skill run's summary is gone (it died mid-run), its checkpoints stay.
+    assert capsys.readouterr().out.splitlines()[-1] == f"0 done, {n} partial, 0 not started; in {out}"
     assert main(["suite", "run", str(path), "--out", str(out)]) == 0
     status = json.loads(capsys.readouterr().out)
-    assert status["counts"]["done"] == 2
-    diayn = json.loads((out / "point_maze" / "diayn" / "seed_0" / "summary.json").read_text())
-    assert "stopped_by" not in diayn and diayn["env_steps"] == 1280  # its whole length: under the budget
-    rows = (out / "point_maze" / "diayn" / "seed_0" / "metrics.csv").read_text().splitlines()
-    assert len(rows) == 1 + 4  # the first session's log points kept, the rest appended
-    # The report over the suite's folder: both algorithms on the task, steps per hour.
+    assert status["counts"]["done"] == n
+    for algorithm in algorithms:  # their whole length: under the budget, the first session's rows kept
+        run = out / "point_maze" / algorithm / "seed_0"
+        assert "stopped_by" not in json.loads((run / "summary.json").read_text())
+        assert len((run / "metrics.csv").read_text().splitlines()) == 1 + 4
+    # The report over the suite's folder: the algorithms on the task, steps per hour.
     result = report.report([out], tmp_path / "report")
-    assert result["groups"]["point_maze"]["labels"] == {"diayn": [0], "map_elites": [0]}
+    assert result["groups"]["point_maze"]["labels"] == {a: [0] for a in algorithms}
     speed = {r["spec"]: r for r in csv.DictReader(Path(result["throughput"]).read_text().splitlines())}
-    assert set(speed) == {"diayn", "map_elites"} and float(speed["diayn"]["env_steps"]) == 1280
+    assert set(speed) == set(algorithms)
     for r in speed.values():
         assert float(r["env_steps_per_hour_run"]) >= float(r["env_steps_per_hour"]) > 0  # compile excluded
     assert "env steps per hour" in Path(result["table"]).read_text()
