@@ -188,10 +188,12 @@ class Plan:
     episode_length: int
     perturbations: tuple[Perturbation, ...]
     eval_batch: int | None = None  # QD runs: the width of the task's evaluation blocks (`task.eval_batch`)
+    best: int | None = None  # QD runs: only the `best` fittest elites (None: every elite, the study's measure)
 
 
 def check_run(
-    path: str | Path, perturbations: Sequence[str] | None = None, episode_length: int | None = None
+    path: str | Path, perturbations: Sequence[str] | None = None, episode_length: int | None = None,
+    best: int | None = None,
 ) -> Plan:
     """The plan of adapting the run in `path`, from its config.toml and summary.json only (no
     jax, nothing compiled); ConfigError saying what was expected for a directory without a run,
@@ -225,7 +227,9 @@ def check_run(
     if policies == "elites" and summary.is_file() and json.loads(summary.read_text()).get("num_elites") == 0:
         raise ConfigError(f"{path}: expected a repertoire with elites; this {algorithm} run's holds none")
     eval_batch = int(section.get("eval_batch", DEFAULT_EVAL_BATCH)) if policies == "elites" else None
-    return Plan(path, algorithm, task, policies, length, chosen, eval_batch)
+    if best is not None and (isinstance(best, bool) or not isinstance(best, int) or best < 1):
+        raise ConfigError(f"--best: expected a positive integer (the number of elites), got {best!r}")
+    return Plan(path, algorithm, task, policies, length, chosen, eval_batch, best if policies == "elites" else None)
 
 
 class Row(NamedTuple):
@@ -284,6 +288,9 @@ def evaluate(plan: Plan, batch_size: int | None = None) -> Adaptation:
             ids = np.flatnonzero(np.asarray(rep.fitnesses) > -np.inf)  # the cells of the elites
             if not len(ids):
                 raise ConfigError(f"{plan.path}: expected a repertoire with elites; this {plan.algorithm} run's holds none")
+            if plan.best is not None:  # the fittest, kept in cell order
+                fitness = np.asarray(rep.fitnesses)[ids]
+                ids = np.sort(ids[np.argsort(-fitness, kind="stable")[: plan.best]])
             template = None if task.policy is None else jax.tree.map(np.shape, task.genotype_template)
             if template is None or jax.tree.map(lambda x: np.shape(x)[1:], rep.genotypes) != template:
                 raise ConfigError(
@@ -419,6 +426,7 @@ def report(adaptation: Adaptation) -> dict[str, Any]:
         "task": plan.task,
         "policies": plan.policies,
         "num_policies": u.num_policies,
+        "best_elites": plan.best,  # None: every elite
         "episode_length": plan.episode_length,
         "unperturbed": {key: _number(getattr(u, key)) for key in ("best_return", "median_return", "mean_return")},
         "perturbations": sets,
@@ -469,10 +477,11 @@ def adapt(
     episode_length: int | None = None,
     out: str | Path | None = None,
     batch_size: int | None = None,
+    best: int | None = None,
 ) -> dict[str, Any]:
     """`qdrl adapt`: checks the run (`check_run`), plays it under every perturbation value
     (`evaluate`) and writes the results into `out` (default: DIR/adaptation; `write`)."""
-    plan = check_run(path, perturbations, episode_length)
+    plan = check_run(path, perturbations, episode_length, best)
     return write(evaluate(plan, batch_size), plan.path / "adaptation" if out is None else out)
 
 
@@ -492,6 +501,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--episode-length", type=int, default=None, help="steps per episode (default: the run's)")
     p.add_argument("--out", default=None, help="output directory (default: DIR/adaptation)")
     p.add_argument(
+        "--best", type=int, default=None, metavar="N",
+        help="QD runs: only the N fittest elites (a cheaper bound on a CPU; default: every elite, the study's measure)",
+    )
+    p.add_argument(
         "--batch-size", type=int, default=None, metavar="N",
         help="episodes rolled out together, values vmapped too (faster on accelerators; multiplier 1 "
         "then differs from the run's returns) (default: the run's evaluation blocks, one value at a time)",
@@ -505,7 +518,7 @@ def command(args: argparse.Namespace) -> int:
     names = None if args.perturbations is None else [n for n in args.perturbations.split(",") if n.strip()]
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout carries only the JSON
-            result = adapt(args.dir, names, args.episode_length, args.out, args.batch_size)
+            result = adapt(args.dir, names, args.episode_length, args.out, args.batch_size, args.best)
     except ConfigError as e:
         print(f"qdrl: error: {e}", file=sys.stderr)
         return 2

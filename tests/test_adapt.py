@@ -301,3 +301,19 @@ def test_a_smerl_run_adapts_its_skills(tmp_path: Path, capsys: pytest.CaptureFix
     assert said["policies"] == "skills" and said["num_policies"] == 2 and said["episode_length"] == 5
     assert [p["perturbation"] for p in said["perturbations"]] == adapt.perturbation_names("halfcheetah_uni")
     assert (tmp_path / "out" / "adaptation.csv").is_file()
+
+
+def test_best_keeps_the_fittest_elites_and_is_checked(tmp_path: Path) -> None:
+    run = _handmade_run(tmp_path / "run")
+    fitnesses = {0: 5.0, 1: -2.0, 3: 9.0}  # placeholders of the hand-made repertoire, made distinct
+    with np.load(run / "repertoire.npz") as f:
+        arrays = dict(f)
+    for cell, value in fitnesses.items():
+        arrays["fitnesses"][cell] = value
+    np.savez(run / "repertoire.npz", **arrays)
+    plan = adapt.check_run(run, ["gravity"], best=2)
+    assert plan.best == 2
+    result = adapt.evaluate(plan)
+    assert result.policy_ids == (0, 3) and result.unperturbed_row.num_policies == 2
+    with pytest.raises(ConfigError, match="--best: expected a positive integer"):
+        adapt.check_run(run, ["gravity"], best=0)
