@@ -40,6 +40,8 @@ RUN_TIME_OUTPUTS = {
     "path.png",  # qdrl render RUN --cell 17 --out path.png
     "<task>/<metric>.png",  # qdrl report: one figure per metric and task
     "<task>/repertoires.png",  # qdrl report: the final repertoires
+    "<task>/adaptation.png",  # qdrl report of adapted runs: best return per perturbation
+    "adaptation.png",  # qdrl adapt RUN: the run's adaptation curves
 }
 # Figures whose results were never recorded in the repository: kept in the table with the
 # reason, not redrawn. A new one belongs here only once its results cannot be kept.
