@@ -227,11 +227,19 @@ def spec_changes(old_toml: str, new_toml: str) -> list[tuple[str, Any, Any]]:
     return [(k, old.get(k, _ABSENT), new.get(k, _ABSENT)) for k in keys if old.get(k, _ABSENT) != new.get(k, _ABSENT)]
 
 
-def _check_resume_spec(config_path: Path, config_text: str, length_key: str) -> None:
-    """Raises ConfigError naming each differing key unless only the length key and [log] differ."""
+def _check_resume_spec(
+    config_path: Path, config_text: str, length_key: str, given: frozenset[str] = frozenset()
+) -> None:
+    """Raises ConfigError naming each differing key unless only the length key and [log] differ.
+
+    A key the run's resolved spec lacks (one qdrl added since the run was made) and the spec
+    does not set (`given`: its flat keys) resolves to its default: not a change."""
     if not config_path.is_file():
         raise ConfigError(f"--resume: {config_path} is missing; expected the resolved spec of the run")
-    changes = spec_changes(config_path.read_text(), config_text)
+    changes = [
+        c for c in spec_changes(config_path.read_text(), config_text)
+        if not (c[1] is _ABSENT and c[0] not in given)
+    ]
     free = (length_key, TIME_LIMIT_KEY, ENV_STEPS_LIMIT_KEY)
     fixed = [c for c in changes if c[0] not in free and not c[0].startswith("log.")]
     if fixed:
@@ -403,7 +411,10 @@ def _open(spec: Mapping[str, Any], out_dir: Path, resume: bool, overwrite: bool,
     if resume:
         if not found:
             raise ConfigError(f"--resume: no checkpoint found in {s.ckpt_dir}")
-        _check_resume_spec(out_dir / "config.toml", s.config_text, length_key)
+        given = frozenset(
+            f"{section}.{key}" for section, table in spec.items() if isinstance(table, Mapping) for key in table
+        )
+        _check_resume_spec(out_dir / "config.toml", s.config_text, length_key, given)
         _check_resume_checkpoints(found, alg.num_chunks, length_key)
         _check_time_limit(out_dir, exp.time_limit_s, exp.env_steps_limit)
     if s.primary and overwrite and not resume and out_dir.exists():

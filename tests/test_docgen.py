@@ -23,7 +23,7 @@ def test_a_key_table_gives_each_key_its_default_what_it_accepts_and_its_comment(
     assert table[0] == "| key | default | accepts | meaning |"
     assert "| `repertoire.kind` | `\"grid\"` | one of 'grid', 'cvt' | regular grid (direct indexing) or CVT |" in table
     assert "| `repertoire.grid_shape` | `[32, 32]` | a list of positive integers |" in table[3]
-    assert len(table) == 2 + 8  # with cvt_seed, and CMA-MAE's learning_rate and threshold_min
+    assert len(table) == 2 + 9  # with cvt_seed, CMA-MAE's learning_rate and threshold_min, fitness_range
     assert table[8].startswith("| `repertoire.learning_rate` | `1.0` |")
     assert table[7].startswith("| `repertoire.cvt_seed` | (none) | an integer >= 0 or nothing")
     train = docgen.keys_table(TrainConfig, "train")
