@@ -58,6 +58,9 @@ def main() -> None:
     p.add_argument("--buffer", type=int, default=100_000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--algorithm", choices=("pga_me", "map_elites"), default="pga_me")
+    p.add_argument("--hidden", default="64,64", help="the policies' hidden layers (the study's: 256,256)")
+    p.add_argument("--activation", choices=("tanh", "relu"), default="tanh",
+                   help="the policies' hidden activation (the study's, QDax's MLP default: relu)")
     p.add_argument("--log-every", type=int, default=0,
                    help="also print the metrics every N iterations (and at the last) as `rows`")
     args = p.parse_args()
@@ -77,9 +80,10 @@ def main() -> None:
     key = jax.random.key(args.seed)
     key, env_key, init_key, cvt_key, me_key = jax.random.split(key, 5)
     env = environments.create(args.task, episode_length=args.episode_length)
+    hidden = tuple(int(h) for h in args.hidden.split(","))
     policy_network = MLP(
-        layer_sizes=(64, 64, env.action_size),
-        activation=jnp.tanh,
+        layer_sizes=(*hidden, env.action_size),
+        activation=jnp.tanh if args.activation == "tanh" else jax.nn.relu,
         kernel_init=jax.nn.initializers.lecun_uniform(),
         final_activation=jnp.tanh,
     )
@@ -159,6 +163,8 @@ def main() -> None:
         "batch": args.batch,
         "iterations": args.iterations,
         "cells": args.cells,
+        "hidden": list(hidden),
+        "activation": args.activation,
         "evaluations": args.batch * (args.iterations + 1),
         "init_s": round(init_s, 2),
         "compile_s": round(compile_s, 2),

@@ -1,0 +1,171 @@
+"""The QDax paper's Table 2 (environment steps per hour) for qdrl and QDax 0.5.0, side by side.
+
+    python benchmarks/table2_vs_qdax.py --qdax-python /path/to/qdax-venv/bin/python
+
+MAP-Elites, PGA-ME, DIAYN-SMERL, DADS and DIAYN on ant_omni and halfcheetah_uni, at the
+skill-discovery benchmark's settings (agents/seed_benchmark/<algorithm>_<task>.toml: MAP-Elites
+batch 1000, PGA-ME env batch 100 with 300 critic / 100 PG steps, the skill methods 200
+environments with one gradient step per environment step; policies 256x256, episodes of 250,
+1024 CVT cells), each run in a fresh process, alternating which library goes first.
+
+- qdrl: `qdrl run seed_benchmark/<algorithm>_<task>` bounded by `experiment.env_steps_limit`,
+  with a log point every iteration (MAP-Elites, PGA-ME) or every `--skill-log-steps` environment
+  steps (skill methods), no checkpoint before the end; steps/s is the environment steps between the
+  first and the last log point over the wall time between them. It therefore counts what a run
+  does between log points besides training: the skill methods' deterministic evaluation of every
+  skill and its insertion into the passive archive, metrics and progress lines.
+- QDax: its own training loop (`benchmarks/qdax_pga_me.py` for MAP-Elites and PGA-ME on its brax
+  v2 tasks, `benchmarks/qdax_skills.py` for the skill baselines, which run on brax v1 as in the
+  study), as ONE `lax.scan` compiled ahead of time, timed without compilation and without
+  evaluation.
+
+Writes every run, and per algorithm and task the ratio qdrl / QDax, as JSON (--out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from compare_qdax_map_elites import _json_from
+
+HERE = Path(__file__).resolve().parent
+ALGORITHMS = ("map_elites", "pga_me", "smerl_diayn", "dads", "diayn")
+TASKS = ("ant_omni", "halfcheetah_uni")
+# iterations timed per side: MAP-Elites (1000 episodes each), PGA-ME (100 episodes each)
+QD_ITERATIONS = {"map_elites": 3, "pga_me": 4}
+
+
+def qdrl_run(algorithm: str, task: str, seed: int, skill_log_steps: int, skill_log_points: int,
+             env: dict[str, str]) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "run"
+        sets = ["log.checkpoint_every=100000", f"experiment.seed={seed}"]
+        if algorithm in QD_ITERATIONS:
+            batch = 1000 if algorithm == "map_elites" else 100
+            steps = batch * 250 * (QD_ITERATIONS[algorithm] + 1)  # the initial batch, then the iterations
+            sets += ["qd.log_every=1", f"experiment.env_steps_limit={steps}"]
+        else:
+            sets += [f"train.eval_every={skill_log_steps}",
+                     f"experiment.env_steps_limit={skill_log_steps * skill_log_points}"]
+        cmd = [sys.executable, "-m", "qdrl.cli", "run", f"seed_benchmark/{algorithm}_{task}", "--out", str(out)]
+        for s in sets:
+            cmd += ["--set", s]
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        wall = time.perf_counter() - t0
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
+        with (out / "metrics.csv").open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        summary = json.loads((out / "summary.json").read_text())
+    if len(rows) < 2:
+        raise RuntimeError(f"{algorithm} on {task}: {len(rows)} log point(s); two are needed for a rate")
+    first, last = rows[0], rows[-1]
+    steps = float(last["env_steps"]) - float(first["env_steps"])
+    seconds = float(last["wall_s"]) - float(first["wall_s"])
+    return {
+        "library": "qdrl", "algorithm": algorithm, "task": task, "seed": seed,
+        "log_points": len(rows), "env_steps_timed": steps, "run_s": round(seconds, 3),
+        "env_steps_per_s": round(steps / seconds, 2), "env_steps_per_hour": round(steps / seconds * 3600.0, 1),
+        "compile_s": round(float(summary.get("compile_s", float("nan"))), 2), "process_s": round(wall, 1),
+        "qd_score": float(last["qd_score"]) if "qd_score" in last else None,
+        "coverage": float(last["coverage"]) if "coverage" in last else None,
+        "max_fitness": float(last["max_fitness"]) if "max_fitness" in last else None,
+        "env_steps": float(last["env_steps"]),
+    }
+
+
+def qdax_run(python: str, algorithm: str, task: str, seed: int, skill_iterations: int,
+             env: dict[str, str]) -> dict[str, Any]:
+    if algorithm in QD_ITERATIONS:
+        cmd = [python, str(HERE / "qdax_pga_me.py"), "--algorithm", algorithm, "--task", task,
+               "--seed", str(seed), "--episode-length", "250", "--hidden", "256,256", "--activation", "relu",
+               "--batch", "1000" if algorithm == "map_elites" else "100",
+               "--iterations", str(QD_ITERATIONS[algorithm]), "--cells", "1024", "--cvt-samples", "50000",
+               "--critic-steps", "300", "--pg-steps", "100", "--train-batch", "256", "--buffer", "1000000"]
+    else:
+        cmd = [python, str(HERE / "qdax_skills.py"), "--algorithm", algorithm, "--task", task,
+               "--seed", str(seed), "--iterations", str(skill_iterations)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
+    rec = _json_from(proc.stdout)
+    rec["env_steps_per_hour"] = round(float(rec["env_steps_per_s"]) * 3600.0, 1)
+    rec["process_s"] = round(wall, 1)
+    return rec
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--qdax-python", required=True, help="python of the venv with qdax==0.5.0 and its old pins")
+    p.add_argument("--algorithms", default=",".join(ALGORITHMS))
+    p.add_argument("--tasks", default=",".join(TASKS))
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--skill-log-steps", type=int, default=2000,
+                   help="qdrl's skill runs: environment steps between log points (10 steps of the 200 envs each)")
+    p.add_argument("--skill-log-points", type=int, default=3)
+    p.add_argument("--append", action="store_true", help="keep the runs already in --out")
+    p.add_argument("--out", default=str(HERE / "results" / "table2_vs_qdax_cpu.json"))
+    args = p.parse_args()
+    algorithms = [a for a in args.algorithms.split(",") if a]
+    tasks = [t for t in args.tasks.split(",") if t]
+    unknown = sorted(set(algorithms) - set(ALGORITHMS)) + sorted(set(tasks) - set(TASKS))
+    if unknown:
+        p.error(f"unknown {unknown}; expected algorithms among {ALGORITHMS} and tasks among {TASKS}")
+    if args.skill_log_steps % 200 or args.skill_log_steps < 200 or args.skill_log_points < 2:
+        p.error("expected --skill-log-steps a positive multiple of 200 and --skill-log-points >= 2")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
+    env["JAX_PLATFORMS"] = "cpu"
+    runs: list[dict[str, Any]] = []
+    if args.append and Path(args.out).exists():
+        runs = json.loads(Path(args.out).read_text())["runs"]
+    # the same environment steps timed on both sides for the skill methods
+    skill_iterations = args.skill_log_steps * (args.skill_log_points - 1) // 200
+    n = 0
+    for task in tasks:
+        for algorithm in algorithms:
+            sides = ["qdrl", "qdax"] if n % 2 == 0 else ["qdax", "qdrl"]
+            n += 1
+            for side in sides:
+                if side == "qdrl":
+                    rec = qdrl_run(algorithm, task, args.seed, args.skill_log_steps, args.skill_log_points, env)
+                else:
+                    rec = qdax_run(args.qdax_python, algorithm, task, args.seed, skill_iterations, env)
+                rec["side"] = side
+                runs.append(rec)
+                print(json.dumps(rec), file=sys.stderr, flush=True)
+                Path(args.out).write_text(json.dumps({"runs": runs}, indent=1) + "\n")
+    table: list[dict[str, Any]] = []
+    for task in TASKS:
+        for algorithm in ALGORITHMS:
+            rate = {side: [r["env_steps_per_hour"] for r in runs
+                           if r["side"] == side and r["algorithm"] == algorithm and r["task"] == task]
+                    for side in ("qdrl", "qdax")}
+            if rate["qdrl"] and rate["qdax"]:
+                q, x = statistics.mean(rate["qdrl"]), statistics.mean(rate["qdax"])
+                table.append({"task": task, "algorithm": algorithm, "qdrl_env_steps_per_hour": round(q, 1),
+                              "qdax_env_steps_per_hour": round(x, 1), "ratio": round(q / x, 3)})
+    result = {
+        "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0]},
+        "settings": "agents/seed_benchmark/<algorithm>_<task>.toml (the study's); see this script's docstring",
+        "table": table, "runs": runs,
+    }
+    Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
+    for row in table:
+        print(json.dumps(row))
+
+
+if __name__ == "__main__":
+    main()
