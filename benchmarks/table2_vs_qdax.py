@@ -107,6 +107,39 @@ def qdax_run(python: str, algorithm: str, task: str, seed: int, skill_iterations
     return rec
 
 
+BATCH = {"map_elites": 1000, "pga_me": 100}
+
+
+def nominal_rate(run: dict[str, Any]) -> float:
+    """Environment steps per hour counted as QDax counts them: batch x episode length per iteration of
+    MAP-Elites and PGA-ME (episodes that end early, as the ant's do when it falls, still count 250);
+    the skill methods count every step of the 200 environments on both sides."""
+    if run["algorithm"] not in BATCH:
+        return float(run["env_steps_per_hour"])
+    if run["side"] == "qdax":
+        return float(run["env_steps_per_hour"])
+    iterations = run["log_points"] - 1  # the log points are one iteration apart
+    return BATCH[run["algorithm"]] * 250 * iterations / run["run_s"] * 3600.0
+
+
+def summarise(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per task and algorithm, the mean steps per hour of each side (qdrl's as it counts them, and as
+    QDax counts them) and the ratio qdrl / QDax on QDax's count."""
+    table: list[dict[str, Any]] = []
+    for task in TASKS:
+        for algorithm in ALGORITHMS:
+            mine = [r for r in runs if r["side"] == "qdrl" and r["algorithm"] == algorithm and r["task"] == task]
+            theirs = [r for r in runs if r["side"] == "qdax" and r["algorithm"] == algorithm and r["task"] == task]
+            if mine and theirs:
+                q = statistics.mean(nominal_rate(r) for r in mine)
+                x = statistics.mean(nominal_rate(r) for r in theirs)
+                table.append({"task": task, "algorithm": algorithm,
+                              "qdrl_env_steps_per_hour": round(statistics.mean(r["env_steps_per_hour"] for r in mine), 1),
+                              "qdrl_env_steps_per_hour_qdax_count": round(q, 1),
+                              "qdax_env_steps_per_hour": round(x, 1), "ratio": round(q / x, 3)})
+    return table
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--qdax-python", required=True, help="python of the venv with qdax==0.5.0 and its old pins")
@@ -117,6 +150,7 @@ def main() -> None:
                    help="qdrl's skill runs: environment steps between log points (10 steps of the 200 envs each)")
     p.add_argument("--skill-log-points", type=int, default=3)
     p.add_argument("--append", action="store_true", help="keep the runs already in --out")
+    p.add_argument("--summarise", action="store_true", help="only recompute the table of the runs in --out")
     p.add_argument("--out", default=str(HERE / "results" / "table2_vs_qdax_cpu.json"))
     args = p.parse_args()
     algorithms = [a for a in args.algorithms.split(",") if a]
@@ -126,6 +160,13 @@ def main() -> None:
         p.error(f"unknown {unknown}; expected algorithms among {ALGORITHMS} and tasks among {TASKS}")
     if args.skill_log_steps % 200 or args.skill_log_steps < 200 or args.skill_log_points < 2:
         p.error("expected --skill-log-steps a positive multiple of 200 and --skill-log-points >= 2")
+    if args.summarise:
+        result = json.loads(Path(args.out).read_text())
+        result["table"] = summarise(result["runs"])
+        Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
+        for row in result["table"]:
+            print(json.dumps(row))
+        return
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
     env["JAX_PLATFORMS"] = "cpu"
     runs: list[dict[str, Any]] = []
@@ -147,16 +188,7 @@ def main() -> None:
                 runs.append(rec)
                 print(json.dumps(rec), file=sys.stderr, flush=True)
                 Path(args.out).write_text(json.dumps({"runs": runs}, indent=1) + "\n")
-    table: list[dict[str, Any]] = []
-    for task in TASKS:
-        for algorithm in ALGORITHMS:
-            rate = {side: [r["env_steps_per_hour"] for r in runs
-                           if r["side"] == side and r["algorithm"] == algorithm and r["task"] == task]
-                    for side in ("qdrl", "qdax")}
-            if rate["qdrl"] and rate["qdax"]:
-                q, x = statistics.mean(rate["qdrl"]), statistics.mean(rate["qdax"])
-                table.append({"task": task, "algorithm": algorithm, "qdrl_env_steps_per_hour": round(q, 1),
-                              "qdax_env_steps_per_hour": round(x, 1), "ratio": round(q / x, 3)})
+    table = summarise(runs)
     result = {
         "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0]},
         "settings": "agents/seed_benchmark/<algorithm>_<task>.toml (the study's); see this script's docstring",
