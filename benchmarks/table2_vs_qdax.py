@@ -13,7 +13,11 @@ environments with one gradient step per environment step; policies 256x256, epis
   steps (skill methods), no checkpoint before the end; steps/s is the environment steps between the
   first and the last log point over the wall time between them. It therefore counts what a run
   does between log points besides training: the skill methods' deterministic evaluation of every
-  skill and its insertion into the passive archive, metrics and progress lines.
+  skill (the spec's 200 episodes of 250 steps, which the study plays every 100,000 steps) and its
+  insertion into the passive archive, metrics and progress lines.
+- qdrl's training scan (skill methods, side `qdrl_scan`): `benchmarks/skill_train_scan.py`, the
+  same spec's off-policy loop alone as one scan of the same number of steps, compiled ahead of
+  time: measured as QDax's side is (`ratio_scan`).
 - QDax: its own training loop (`benchmarks/qdax_pga_me.py` for MAP-Elites and PGA-ME on its brax
   v2 tasks, `benchmarks/qdax_skills.py` for the skill baselines, which run on brax v1 as in the
   study), as ONE `lax.scan` compiled ahead of time, timed without compilation and without
@@ -133,11 +137,29 @@ def summarise(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             if mine and theirs:
                 q = statistics.mean(nominal_rate(r) for r in mine)
                 x = statistics.mean(nominal_rate(r) for r in theirs)
-                table.append({"task": task, "algorithm": algorithm,
-                              "qdrl_env_steps_per_hour": round(statistics.mean(r["env_steps_per_hour"] for r in mine), 1),
-                              "qdrl_env_steps_per_hour_qdax_count": round(q, 1),
-                              "qdax_env_steps_per_hour": round(x, 1), "ratio": round(q / x, 3)})
+                row = {"task": task, "algorithm": algorithm,
+                       "qdrl_env_steps_per_hour": round(statistics.mean(r["env_steps_per_hour"] for r in mine), 1),
+                       "qdrl_env_steps_per_hour_qdax_count": round(q, 1),
+                       "qdax_env_steps_per_hour": round(x, 1), "ratio": round(q / x, 3)}
+                scans = [r for r in runs if r["side"] == "qdrl_scan" and r["algorithm"] == algorithm and r["task"] == task]
+                if scans:  # the training scan alone, measured as QDax's side is
+                    sq = statistics.mean(float(r["env_steps_per_hour"]) for r in scans)
+                    row.update({"qdrl_scan_env_steps_per_hour": round(sq, 1), "ratio_scan": round(sq / x, 3)})
+                table.append(row)
     return table
+
+
+def qdrl_scan(algorithm: str, task: str, seed: int, iterations: int, env: dict[str, str]) -> dict[str, Any]:
+    """qdrl's skill training alone (`benchmarks/skill_train_scan.py`): the measure of QDax's side."""
+    cmd = [sys.executable, str(HERE / "skill_train_scan.py"), "--algorithm", algorithm, "--task", task,
+           "--seed", str(seed), "--iterations", str(iterations)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
+    rec = _json_from(proc.stdout)
+    rec["process_s"] = round(time.perf_counter() - t0, 1)
+    return rec
 
 
 def main() -> None:
@@ -179,9 +201,13 @@ def main() -> None:
         for algorithm in algorithms:
             sides = ["qdrl", "qdax"] if n % 2 == 0 else ["qdax", "qdrl"]
             n += 1
+            if algorithm not in QD_ITERATIONS:  # the skill methods: also qdrl's training scan alone
+                sides.insert(sides.index("qdrl"), "qdrl_scan")
             for side in sides:
                 if side == "qdrl":
                     rec = qdrl_run(algorithm, task, args.seed, args.skill_log_steps, args.skill_log_points, env)
+                elif side == "qdrl_scan":
+                    rec = qdrl_scan(algorithm, task, args.seed, skill_iterations, env)
                 else:
                     rec = qdax_run(args.qdax_python, algorithm, task, args.seed, skill_iterations, env)
                 rec["side"] = side

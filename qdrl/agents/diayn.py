@@ -112,31 +112,42 @@ def make_diayn_module(config: DIAYNConfig, obs_size: int, descriptor_size: int) 
         params = network.init(key, jnp.zeros((1, in_size), jnp.float32))
         return DiscriminatorState(params, adam.init(params))
 
+    def reward_of(logits: Array, skills: Array) -> tuple[Array, Info]:
+        correct = (jnp.argmax(logits, axis=-1) == skills).astype(jnp.float32)
+        return diayn_reward(logits, skills), {"discriminator_accuracy": correct}
+
     def reward(
         state: DiscriminatorState, transitions: Transition, key: PRNGKey
     ) -> tuple[Array, Info]:
         del key
         skills = skill_of(transitions.obs, k)
-        logits = network.apply(state.params, model_inputs(transitions, config.model_input, k))
-        correct = (jnp.argmax(logits, axis=-1) == skills).astype(jnp.float32)
-        return diayn_reward(logits, skills), {"discriminator_accuracy": correct}
+        return reward_of(network.apply(state.params, model_inputs(transitions, config.model_input, k)), skills)
+
+    def reward_and_update(
+        state: DiscriminatorState, transitions: Transition, reward_key: PRNGKey, update_key: PRNGKey
+    ) -> tuple[Array, Info, DiscriminatorState, Metrics]:
+        """`reward` and `update` with one forward pass: the logits of the loss are the reward's."""
+        del reward_key, update_key
+        skills = skill_of(transitions.obs, k)
+        x = model_inputs(transitions, config.model_input, k)
+
+        def loss_fn(params: Params) -> tuple[Array, Array]:
+            logits = network.apply(params, x)
+            return discriminator_loss(logits, skills), logits
+
+        (loss, logits), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
+        updates, opt_state = adam.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        r_div, info = reward_of(jax.lax.stop_gradient(logits), skills)
+        return r_div, info, DiscriminatorState(params, opt_state), {"discriminator_loss": loss}
 
     def update(
         state: DiscriminatorState, transitions: Transition, key: PRNGKey
     ) -> tuple[DiscriminatorState, Metrics]:
-        del key
-        skills = skill_of(transitions.obs, k)
-        x = model_inputs(transitions, config.model_input, k)
+        _, _, state, metrics = reward_and_update(state, transitions, key, key)
+        return state, metrics
 
-        def loss_fn(params: Params) -> Array:
-            return discriminator_loss(network.apply(params, x), skills)
-
-        loss, grads = jax.value_and_grad(loss_fn)(state.params)
-        updates, opt_state = adam.update(grads, state.opt_state, state.params)
-        params = optax.apply_updates(state.params, updates)
-        return DiscriminatorState(params, opt_state), {"discriminator_loss": loss}
-
-    return RewardModule(init=init, reward=reward, update=update)
+    return RewardModule(init=init, reward=reward, update=update, reward_and_update=reward_and_update)
 
 
 def make_diayn(

@@ -15,6 +15,8 @@ batch. A `RewardModule` bundles that model: `init`, `reward` and `update`.
 4. takes one optimiser step of the model (`module.update`), on every update or, with
    `model_update_every = n`, on every n-th (DADS's reference code trains its model 8
    steps per 64 agent steps); the model's metrics read NaN on the updates it skips.
+   Steps 1 and 4 use the same parameters and batch: a module whose reward and loss share
+   their forward pass gives `reward_and_update`, which does both in one pass.
 
 The wrapped agent trains through the one off-policy loop (`qdrl.off_policy`);
 with a gate, the loop must store episode returns (`off_policy.EPISODE_RETURNS`),
@@ -98,11 +100,16 @@ class RewardModule(NamedTuple):
     init(key) -> aux_state
     reward(aux_state, transitions, key) -> (r_div (B,), info)   info: per-transition (B,) values
     update(aux_state, transitions, key) -> (aux_state, metrics) one training step of the model
+    reward_and_update(aux_state, transitions, reward_key, update_key)
+        -> (r_div, info, aux_state, metrics), optional: `reward` then `update` on the same
+        batch with the same parameters, in one pass where they share work (DIAYN's
+        discriminator logits are both the reward's and the loss's forward pass)
     """
 
     init: Callable[[PRNGKey], Any]
     reward: Callable[[Any, Transition, PRNGKey], tuple[Array, Info]]
     update: Callable[[Any, Transition, PRNGKey], tuple[Any, Metrics]]
+    reward_and_update: Callable[[Any, Transition, PRNGKey, PRNGKey], tuple[Array, Info, Any, Metrics]] | None = None
 
 
 class IntrinsicState(NamedTuple):
@@ -171,19 +178,27 @@ def with_intrinsic_reward(
     def policy_params(state: IntrinsicState) -> Any:
         return agent.policy_params(state.agent)
 
-    def train_model(
-        aux: Any, transitions: Transition, key: PRNGKey, steps: Array
-    ) -> tuple[Any, Metrics]:
+    def reward_and_train(
+        aux: Any, transitions: Transition, reward_key: PRNGKey, update_key: PRNGKey, steps: Array
+    ) -> tuple[Array, Info, Any, Metrics]:
+        """The batch's intrinsic reward under the model's current parameters, and the model's
+        step on the updates it trains (its metrics NaN on the others)."""
+
+        def separate(aux: Any, transitions: Transition, reward_key: PRNGKey, update_key: PRNGKey) -> Any:
+            return (*module.reward(aux, transitions, reward_key), *module.update(aux, transitions, update_key))
+
+        both = separate if module.reward_and_update is None else module.reward_and_update
         if model_update_every == 1:
-            return module.update(aux, transitions, key)
+            return both(aux, transitions, reward_key, update_key)
 
-        def skip(aux: Any, transitions: Transition, key: PRNGKey) -> tuple[Any, Metrics]:
-            shapes = jax.eval_shape(module.update, aux, transitions, key)[1]
-            return aux, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
+        def reward_only(aux: Any, transitions: Transition, reward_key: PRNGKey, update_key: PRNGKey) -> Any:
+            shapes = jax.eval_shape(module.update, aux, transitions, update_key)[1]
+            nan = jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
+            return (*module.reward(aux, transitions, reward_key), aux, nan)
 
-        # A real branch (unless vmapped, e.g. in a population): skipped steps cost nothing.
+        # A real branch (unless vmapped, e.g. in a population): skipped steps cost no model step.
         return jax.lax.cond(
-            steps % model_update_every == 0, module.update, skip, aux, transitions, key
+            steps % model_update_every == 0, both, reward_only, aux, transitions, reward_key, update_key
         )
 
     def update(state: IntrinsicState, batch: Any, key: PRNGKey) -> tuple[IntrinsicState, Metrics]:
@@ -193,7 +208,9 @@ def with_intrinsic_reward(
             transitions, episode_return = batch
             weight = gate(episode_return).astype(jnp.float32)
         reward_key, agent_key, aux_key = jax.random.split(key, 3)
-        r_div, info = module.reward(state.aux, transitions, reward_key)
+        r_div, info, aux, aux_metrics = reward_and_train(
+            state.aux, transitions, reward_key, aux_key, state.steps
+        )
         r_div = jax.lax.stop_gradient(r_div)
         hp = state.hparams
         reward = relabel(
@@ -202,7 +219,6 @@ def with_intrinsic_reward(
         agent_state, metrics = agent.update(
             state.agent, transitions._replace(reward=reward), agent_key
         )
-        aux, aux_metrics = train_model(state.aux, transitions, aux_key, state.steps)
         out = dict(metrics)
         out.update(aux_metrics)
         out.update({k: jnp.mean(v) for k, v in info.items()})

@@ -82,6 +82,58 @@ def test_diayn_module_learns_to_discriminate_positions() -> None:
     assert float(metrics["discriminator_loss"]) < 0.1
 
 
+def test_diayn_one_pass_equals_reward_then_update() -> None:
+    # The agent's update calls `reward_and_update`: one forward pass of the discriminator
+    # serves the reward and the loss. It must equal `reward` then `update` on the same batch.
+    module = make_diayn_module(DIAYNConfig(num_skills=K, hidden=(16, 16)), 3, 2)
+    assert module.reward_and_update is not None
+    rng = np.random.default_rng(0)
+    tr = _transitions(32, rng.integers(0, K, 32), rng.normal(size=(32, 2)), rng.normal(size=(32, 2)))
+    state = module.init(jax.random.PRNGKey(0))
+    key = jax.random.PRNGKey(1)
+    r, info = module.reward(state, tr, key)
+    new, metrics = module.update(state, tr, key)
+    r1, info1, new1, metrics1 = jax.jit(module.reward_and_update)(state, tr, key, key)
+    np.testing.assert_allclose(r1, r, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(info1["discriminator_accuracy"], info["discriminator_accuracy"])
+    np.testing.assert_allclose(metrics1["discriminator_loss"], metrics["discriminator_loss"], rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(new1), jax.tree.leaves(new), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    # the loss is the mean of log K - r (cross-entropy = -log q(z|s'))
+    np.testing.assert_allclose(metrics1["discriminator_loss"], jnp.mean(math.log(K) - r1), rtol=1e-5)
+
+
+def test_intrinsic_agent_uses_the_one_pass_on_the_updates_that_train_the_model() -> None:
+    # Trained every 2nd update: the one pass on updates 0 and 2, the reward alone on 1.
+    from qdrl.agents.base import Agent
+
+    calls: list[str] = []
+    inner = Agent(lambda k: 0, lambda s, o, k: o, lambda p, o: o, lambda s: s,
+                  lambda s, t, k: (s, {}))
+
+    def one_pass(a, t, k1, k2):  # type: ignore[no-untyped-def]
+        calls.append("both")
+        return jnp.full(t.reward.shape, 2.0), {}, a + 1.0, {"model_loss": a + 1.0}
+
+    def reward(a, t, k):  # type: ignore[no-untyped-def]
+        calls.append("reward")
+        return jnp.full(t.reward.shape, 2.0), {}
+
+    module = RewardModule(init=lambda k: jnp.zeros(()), reward=reward,
+                          update=lambda a, t, k: (a + 1.0, {"model_loss": a + 1.0}),
+                          reward_and_update=one_pass)
+    agent = with_intrinsic_reward(inner, module, model_update_every=2)
+    tr = _transitions(2, np.zeros(2, int), np.zeros((2, 2)), np.zeros((2, 2)))
+    state = agent.init(jax.random.PRNGKey(0))
+    losses = []
+    for i in range(3):
+        state, metrics = agent.update(state, tr, jax.random.PRNGKey(i))
+        losses.append(float(metrics["model_loss"]))
+    assert float(state.aux) == 2.0 and float(metrics["intrinsic_reward"]) == 2.0
+    np.testing.assert_array_equal(losses, [1.0, np.nan, 2.0])
+    assert "both" in calls and "reward" in calls  # both branches traced (lax.cond)
+
+
 def test_diayn_full_state_input_reads_obs_without_skill() -> None:
     module = make_diayn_module(DIAYNConfig(num_skills=K, model_input="full", hidden=(8,)), 3, 2)
     state = module.init(jax.random.PRNGKey(0))
