@@ -184,22 +184,31 @@ def with_intrinsic_reward(
         """The batch's intrinsic reward under the model's current parameters, and the model's
         step on the updates it trains (its metrics NaN on the others)."""
 
-        def separate(aux: Any, transitions: Transition, reward_key: PRNGKey, update_key: PRNGKey) -> Any:
-            return (*module.reward(aux, transitions, reward_key), *module.update(aux, transitions, update_key))
+        def nan_metrics(aux: Any, transitions: Transition, update_key: PRNGKey) -> Metrics:
+            shapes = jax.eval_shape(module.update, aux, transitions, update_key)[1]
+            return jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
 
-        both = separate if module.reward_and_update is None else module.reward_and_update
+        both = module.reward_and_update
+        trains = steps % model_update_every == 0
+        # Each lax.cond below is a real branch (unless vmapped, e.g. in a population, where
+        # both branches run): skipped steps cost no model step.
+        if both is None:  # the reward outside the branch: computed once, vmapped or not
+            r_div, info = module.reward(aux, transitions, reward_key)
+            if model_update_every == 1:
+                return (r_div, info, *module.update(aux, transitions, update_key))
+
+            def skip(aux: Any, transitions: Transition, update_key: PRNGKey) -> tuple[Any, Metrics]:
+                return aux, nan_metrics(aux, transitions, update_key)
+
+            aux, metrics = jax.lax.cond(trains, module.update, skip, aux, transitions, update_key)
+            return r_div, info, aux, metrics
         if model_update_every == 1:
             return both(aux, transitions, reward_key, update_key)
 
         def reward_only(aux: Any, transitions: Transition, reward_key: PRNGKey, update_key: PRNGKey) -> Any:
-            shapes = jax.eval_shape(module.update, aux, transitions, update_key)[1]
-            nan = jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
-            return (*module.reward(aux, transitions, reward_key), aux, nan)
+            return (*module.reward(aux, transitions, reward_key), aux, nan_metrics(aux, transitions, update_key))
 
-        # A real branch (unless vmapped, e.g. in a population): skipped steps cost no model step.
-        return jax.lax.cond(
-            steps % model_update_every == 0, both, reward_only, aux, transitions, reward_key, update_key
-        )
+        return jax.lax.cond(trains, both, reward_only, aux, transitions, reward_key, update_key)
 
     def update(state: IntrinsicState, batch: Any, key: PRNGKey) -> tuple[IntrinsicState, Metrics]:
         if gate is None:
