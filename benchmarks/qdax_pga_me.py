@@ -14,7 +14,8 @@ in a virtual environment with QDax's old pins. The one used here was made with
     $P install --no-deps "brax==0.10.4" "mujoco==3.1.6" "mujoco-mjx==3.1.6" "qdax==0.5.0"
     $P install --no-deps absl-py dm_env "etils[epath]" ml_collections trimesh "jaxopt==0.8.3" glfw \
         pyopengl tensorboardX flask flask_cors grpcio gym jinja2 pillow pytinyrenderer \
-        "scikit-learn==1.5.2" joblib threadpoolctl cloudpickle typing_extensions "jumanji==1.0.0"
+        "scikit-learn==1.5.2" joblib threadpoolctl cloudpickle typing_extensions "jumanji==1.0.0" \
+        "tensorflow-probability==0.24.0" decorator gast dm-tree six   # QDax's DADS imports tfp
 
 (resolving `qdax==0.5.0` with its dependencies instead makes pip backtrack for many
 minutes over mujoco-mjx versions that need a newer jax). Run it as
