@@ -168,7 +168,7 @@ def main() -> None:
     p.add_argument("--algorithms", default=",".join(ALGORITHMS))
     p.add_argument("--tasks", default=",".join(TASKS))
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--skill-log-steps", type=int, default=2000,
+    p.add_argument("--skill-log-steps", type=int, default=6000,
                    help="qdrl's skill runs: environment steps between log points (10 steps of the 200 envs each)")
     p.add_argument("--skill-log-points", type=int, default=3)
     p.add_argument("--append", action="store_true", help="keep the runs already in --out")
