@@ -8,6 +8,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from qdrl import buffers, off_policy
@@ -26,6 +27,7 @@ from qdrl.agents.diayn import (
     DIAYNConfig,
     diayn_reward,
     discriminator_loss,
+    discriminator_network,
     make_diayn,
     make_diayn_module,
 )
@@ -84,20 +86,35 @@ def test_diayn_module_learns_to_discriminate_positions() -> None:
 
 def test_diayn_one_pass_equals_reward_then_update() -> None:
     # The agent's update calls `reward_and_update`: one forward pass of the discriminator
-    # serves the reward and the loss. It must equal `reward` then `update` on the same batch.
-    module = make_diayn_module(DIAYNConfig(num_skills=K, hidden=(16, 16)), 3, 2)
+    # serves the reward and the loss. It must equal the reward of `reward` and a separate
+    # Adam step on the cross-entropy of the same network (written out here, not the module's).
+    config = DIAYNConfig(num_skills=K, hidden=(16, 16))
+    module = make_diayn_module(config, 3, 2)
     assert module.reward_and_update is not None
     rng = np.random.default_rng(0)
-    tr = _transitions(32, rng.integers(0, K, 32), rng.normal(size=(32, 2)), rng.normal(size=(32, 2)))
+    skills = rng.integers(0, K, 32)
+    tr = _transitions(32, skills, rng.normal(size=(32, 2)), rng.normal(size=(32, 2)))
     state = module.init(jax.random.PRNGKey(0))
     key = jax.random.PRNGKey(1)
     r, info = module.reward(state, tr, key)
-    new, metrics = module.update(state, tr, key)
+    network = discriminator_network(K, config.hidden, config.activation)
+    adam = optax.adam(config.learning_rate)
+
+    def loss_fn(params):  # type: ignore[no-untyped-def]
+        return discriminator_loss(network.apply(params, tr.next_desc), jnp.asarray(skills))
+
+    loss, grads = jax.value_and_grad(loss_fn)(state.params)
+    updates, opt_state = adam.update(grads, state.opt_state, state.params)
+    expected = (optax.apply_updates(state.params, updates), opt_state)
     r1, info1, new1, metrics1 = jax.jit(module.reward_and_update)(state, tr, key, key)
     np.testing.assert_allclose(r1, r, rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(info1["discriminator_accuracy"], info["discriminator_accuracy"])
-    np.testing.assert_allclose(metrics1["discriminator_loss"], metrics["discriminator_loss"], rtol=1e-6)
-    for a, b in zip(jax.tree.leaves(new1), jax.tree.leaves(new), strict=True):
+    np.testing.assert_allclose(metrics1["discriminator_loss"], loss, rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(new1), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    new, metrics = module.update(state, tr, key)  # the module's update is the same step
+    np.testing.assert_allclose(metrics["discriminator_loss"], loss, rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(new), jax.tree.leaves(expected), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
     # the loss is the mean of log K - r (cross-entropy = -log q(z|s'))
     np.testing.assert_allclose(metrics1["discriminator_loss"], jnp.mean(math.log(K) - r1), rtol=1e-5)
