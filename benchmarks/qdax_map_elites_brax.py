@@ -30,6 +30,28 @@ import jax
 import jax.numpy as jnp
 
 
+def qdax_map_elites(env, task: str, scoring_fn, batch: int, episode_length: int, cells: int,  # type: ignore[no-untyped-def]
+                    cvt_samples: int, cvt_key):
+    """QDax's MAPElites with iso-line 0.005 / 0.05 and its CVT centroids, as this benchmark runs it."""
+    from qdax.core.containers.mapelites_repertoire import compute_cvt_centroids
+    from qdax.core.emitters.mutation_operators import isoline_variation
+    from qdax.core.emitters.standard_emitters import MixingEmitter
+    from qdax.core.map_elites import MAPElites
+    from qdax.tasks.brax import v2 as environments
+    from qdax.utils.metrics import default_qd_metrics
+
+    low, high = env.descriptor_limits
+    centroids = compute_cvt_centroids(env.descriptor_length, cvt_samples, cells, low, high, cvt_key)
+    offset = environments.reward_offset[task] * episode_length
+    emitter = MixingEmitter(
+        mutation_fn=lambda x, k: x,
+        variation_fn=functools.partial(isoline_variation, iso_sigma=0.005, line_sigma=0.05),
+        variation_percentage=1.0,
+        batch_size=batch,
+    )
+    return MAPElites(scoring_fn, emitter, functools.partial(default_qd_metrics, qd_offset=offset)), centroids
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--task", default="halfcheetah_uni")
@@ -44,14 +66,9 @@ def main() -> None:
     p.add_argument("--hlo-dir", default=None, help="write the timed program's HLO texts here")
     args = p.parse_args()
 
-    from qdax.core.containers.mapelites_repertoire import compute_cvt_centroids
-    from qdax.core.emitters.mutation_operators import isoline_variation
-    from qdax.core.emitters.standard_emitters import MixingEmitter
-    from qdax.core.map_elites import MAPElites
     from qdax.core.neuroevolution.networks.networks import MLP
     from qdax.tasks.brax import v2 as environments
     from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
-    from qdax.utils.metrics import default_qd_metrics
 
     key = jax.random.key(args.seed)
     key, env_key, init_key, cvt_key, me_key = jax.random.split(key, 5)
@@ -80,18 +97,8 @@ def main() -> None:
     reset_s, reset_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     obs = jnp.zeros((args.batch, env.observation_size))
     params = jax.vmap(policy_network.init)(jax.random.split(init_key, args.batch), obs)
-    low, high = env.descriptor_limits
-    centroids = compute_cvt_centroids(
-        env.descriptor_length, args.cvt_samples, args.cells, low, high, cvt_key
-    )
-    offset = environments.reward_offset[args.task] * args.episode_length
-    emitter = MixingEmitter(
-        mutation_fn=lambda x, k: x,
-        variation_fn=functools.partial(isoline_variation, iso_sigma=0.005, line_sigma=0.05),
-        variation_percentage=1.0,
-        batch_size=args.batch,
-    )
-    me = MAPElites(scoring_fn, emitter, functools.partial(default_qd_metrics, qd_offset=offset))
+    me, centroids = qdax_map_elites(env, args.task, scoring_fn, args.batch, args.episode_length,
+                                    args.cells, args.cvt_samples, cvt_key)
     repertoire, emitter_state, _ = jax.jit(me.init)(params, centroids, me_key)
     jax.block_until_ready(repertoire)
 
