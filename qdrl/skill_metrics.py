@@ -1,0 +1,142 @@
+"""How well skills reach their targets in a feature space: QDAC's distance-to-skill metrics.
+
+A feature-space skill z is a target for the episode's average feature vector phi-bar
+(Grillotti, Faldor, González León & Cully 2024, "Quality-Diversity Actor-Critic", ICML).
+Evaluated over a fixed set of skills, a method is judged by
+
+- the **distance to skill** ||phi-bar - z||_2 of each skill (averaged over replicated
+  episodes when given several),
+- its **distance profile**: for each of `num_bins` distances d evenly spaced in
+  [0, max_distance], the share of skills whose distance is below d,
+- its **performance profile**: for each of `num_bins` returns R evenly spaced in
+  [min_return, max_return], the share of ALL skills that both reach their target (distance
+  at most `threshold`) and return more than R,
+- the **skill QD score**: the sum, over the skills that reach their target, of the return
+  normalised to [0, 1] by (min_return, max_return) and clipped,
+- the **distance score**: the sum over skills of 1 - d / max_distance, clipped to [0, 1].
+
+The profiles use 21 bins, as QDAC's analysis code does; the thresholds are returned with the
+shares so that plots need not rebuild them. Angle features (a heading) use the wrapped
+distance min(|a - b|, 2 pi - |a - b|) with `angles=True`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from qdrl.types import Array
+
+NUM_BINS = 21  # QDAC's analysis code
+
+
+class Profile(NamedTuple):
+    """`share[i]`: the share of skills that pass `thresholds[i]`."""
+
+    thresholds: Array
+    share: Array
+
+
+def _check_finite_range(low: float, high: float, low_name: str, high_name: str) -> None:
+    if not (math.isfinite(low) and math.isfinite(high) and high > low):
+        raise ValueError(f"{low_name} < {high_name} (finite) expected, got {low_name}={low}, {high_name}={high}")
+
+
+def _check_bins(num_bins: int) -> None:
+    if num_bins < 2:
+        raise ValueError(f"num_bins: expected at least 2, got {num_bins}")
+
+
+def _check_positive(value: float, name: str) -> None:
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name}: expected a finite value > 0, got {value}")
+
+
+def _check_same_length(returns: Array, distances: Array) -> None:
+    if returns.ndim != 1 or returns.shape != distances.shape:
+        raise ValueError(
+            f"returns and distances: expected two arrays of shape (n,), got {returns.shape} and {distances.shape}"
+        )
+
+
+def distance_to_skill(mean_features: Array, skills: Array, angles: bool = False) -> Array:
+    """(n,) distance of each skill's average features (n, D), or (n, r, D) over r episodes, to its target (n, D).
+
+    With replicated episodes the distance is computed per episode, then averaged (QDAC's
+    `mean_distance_to_goal`). `angles`: features are angles in radians, each compared along
+    the circle (the shorter arc), and the distance is the Euclidean norm of those arcs.
+    """
+    mean_features = jnp.asarray(mean_features, jnp.float32)
+    skills = jnp.asarray(skills, jnp.float32)
+    if skills.ndim != 2:
+        raise ValueError(f"skills: expected shape (n, D), got {skills.shape}")
+    replicated = mean_features.ndim == 3
+    if mean_features.ndim not in (2, 3) or (mean_features.shape[0], mean_features.shape[-1]) != skills.shape:
+        raise ValueError(
+            f"mean_features: expected shape {skills.shape} or ({skills.shape[0]}, r, {skills.shape[1]}) "
+            f"to match skills {skills.shape}, got {mean_features.shape}"
+        )
+    targets = skills[:, None, :] if replicated else skills
+    diff = mean_features - targets
+    if angles:
+        arc = jnp.abs(jnp.mod(diff + jnp.pi, 2 * jnp.pi) - jnp.pi)
+        diff = arc
+    dist = jnp.linalg.norm(diff, axis=-1)
+    return jnp.mean(dist, axis=1) if replicated else dist
+
+
+def distance_profile(distances: Array, max_distance: float, num_bins: int = NUM_BINS) -> Profile:
+    """For d evenly spaced in [0, max_distance]: the share of skills whose distance is below d."""
+    _check_positive(max_distance, "max_distance")
+    _check_bins(num_bins)
+    distances = jnp.asarray(distances, jnp.float32)
+    if distances.ndim != 1:
+        raise ValueError(f"distances: expected shape (n,), got {distances.shape}")
+    thresholds = jnp.linspace(0.0, max_distance, num_bins)
+    share = jnp.mean(distances[None, :] < thresholds[:, None], axis=1)
+    return Profile(thresholds, share)
+
+
+def performance_profile(
+    returns: Array,
+    distances: Array,
+    threshold: float,
+    min_return: float,
+    max_return: float,
+    num_bins: int = NUM_BINS,
+) -> Profile:
+    """For R evenly spaced in [min_return, max_return]: the share of all skills within
+    `threshold` of their target whose return is above R."""
+    _check_positive(threshold, "threshold")
+    _check_finite_range(min_return, max_return, "min_return", "max_return")
+    _check_bins(num_bins)
+    returns = jnp.asarray(returns, jnp.float32)
+    distances = jnp.asarray(distances, jnp.float32)
+    _check_same_length(returns, distances)
+    reached = distances <= threshold
+    thresholds = jnp.linspace(min_return, max_return, num_bins)
+    share = jnp.mean(reached[None, :] & (returns[None, :] > thresholds[:, None]), axis=1)
+    return Profile(thresholds, share)
+
+
+def skill_qd_score(
+    returns: Array, distances: Array, threshold: float, min_return: float, max_return: float
+) -> Array:
+    """() sum, over the skills within `threshold` of their target, of their return
+    normalised by (min_return, max_return) and clipped to [0, 1]."""
+    _check_positive(threshold, "threshold")
+    _check_finite_range(min_return, max_return, "min_return", "max_return")
+    returns = jnp.asarray(returns, jnp.float32)
+    distances = jnp.asarray(distances, jnp.float32)
+    _check_same_length(returns, distances)
+    normalised = jnp.clip((returns - min_return) / (max_return - min_return), 0.0, 1.0)
+    return jnp.sum(jnp.where(distances <= threshold, normalised, 0.0))
+
+
+def distance_score(distances: Array, max_distance: float) -> Array:
+    """() sum over skills of 1 - distance / max_distance, clipped to [0, 1]."""
+    _check_positive(max_distance, "max_distance")
+    distances = jnp.asarray(distances, jnp.float32)
+    return jnp.sum(jnp.clip(1.0 - distances / max_distance, 0.0, 1.0))

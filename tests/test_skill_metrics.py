@@ -1,0 +1,83 @@
+"""QDAC's distance-to-skill metrics against hand computations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from qdrl import skill_metrics as sm
+
+SKILLS = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], np.float32)
+# Each skill's average features: distances 0, 0.5, 0.25 and 1 (exact in float32).
+FEATURES = np.array([[0.0, 0.0], [0.5, 0.0], [0.0, 0.75], [1.0, 0.0]], np.float32)
+DISTANCES = np.array([0.0, 0.5, 0.25, 1.0])
+
+
+def test_distance_to_skill_per_skill_and_over_replicates() -> None:
+    np.testing.assert_allclose(sm.distance_to_skill(FEATURES, SKILLS), DISTANCES, atol=1e-6)
+    # Two episodes per skill: the distances are averaged (not the features).
+    replicated = np.stack([FEATURES, SKILLS], axis=1)  # the second episode hits its target
+    np.testing.assert_allclose(sm.distance_to_skill(replicated, SKILLS), DISTANCES / 2, atol=1e-6)
+    # Averaging the features first would give |mean - z| = distance / 2 too here, so also
+    # check episodes on opposite sides of the target: features average to the target itself.
+    shift = np.array([0.2, 0.0], np.float32)
+    opposite = np.stack([SKILLS + shift, SKILLS - shift], axis=1)
+    np.testing.assert_allclose(sm.distance_to_skill(opposite, SKILLS), np.full(4, 0.2), atol=1e-6)
+
+
+def test_angles_take_the_shorter_arc() -> None:
+    skills = np.array([[0.1], [3.0], [-3.0]], np.float32)
+    feats = np.array([[2 * math.pi - 0.1], [-3.0], [3.0]], np.float32)
+    # 0.1 and 2 pi - 0.1 are 0.2 apart along the circle; 3 and -3 are 2 pi - 6 apart.
+    expected = [0.2, 2 * math.pi - 6.0, 2 * math.pi - 6.0]
+    np.testing.assert_allclose(sm.distance_to_skill(feats, skills, angles=True), expected, atol=1e-5)
+    np.testing.assert_allclose(sm.distance_to_skill(feats, skills), [2 * math.pi - 0.2, 6.0, 6.0], atol=1e-5)
+
+
+def test_distance_profile() -> None:
+    profile = sm.distance_profile(DISTANCES, max_distance=1.0, num_bins=5)
+    np.testing.assert_allclose(profile.thresholds, [0.0, 0.25, 0.5, 0.75, 1.0])
+    # below 0: none; below 0.25: d=0 (0.25 is not below 0.25); below 0.5: 0 and 0.25; below
+    # 0.75 and 1: all but d=1
+    np.testing.assert_allclose(profile.share, [0.0, 0.25, 0.5, 0.75, 0.75])
+    assert sm.distance_profile(DISTANCES, 1.0).share.shape == (21,)
+
+
+def test_performance_profile_counts_reached_skills_over_all_skills() -> None:
+    returns = np.array([10.0, 50.0, 90.0, 100.0], np.float32)
+    profile = sm.performance_profile(returns, DISTANCES, threshold=0.5, min_return=0.0, max_return=100.0, num_bins=5)
+    np.testing.assert_allclose(profile.thresholds, [0.0, 25.0, 50.0, 75.0, 100.0])
+    # Reached (distance <= 0.5): the first three. Returns above 0: 3 of 4; above 25: 50 and 90;
+    # above 50: 90 only; above 75: 90; above 100: none. The last skill (return 100) never counts.
+    np.testing.assert_allclose(profile.share, [0.75, 0.5, 0.25, 0.25, 0.0])
+
+
+def test_skill_qd_score_and_distance_score() -> None:
+    returns = np.array([-20.0, 50.0, 90.0, 100.0], np.float32)
+    # Reached: the first three, normalised by (0, 100) and clipped: 0 + 0.5 + 0.9.
+    assert float(sm.skill_qd_score(returns, DISTANCES, 0.5, 0.0, 100.0)) == pytest.approx(1.4)
+    # A wider threshold lets the last one in: + 1.0.
+    assert float(sm.skill_qd_score(returns, DISTANCES, 1.0, 0.0, 100.0)) == pytest.approx(2.4)
+    # 1 - d / 2 over the four skills: 1 + 0.75 + 0.875 + 0.5; with max_distance 0.5 the last
+    # two are clipped at 0 and 0.5: 1 + 0 + 0.5 + 0.
+    assert float(sm.distance_score(DISTANCES, 2.0)) == pytest.approx(3.125)
+    assert float(sm.distance_score(DISTANCES, 0.5)) == pytest.approx(1.5)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: sm.distance_profile(DISTANCES, 0.0), "max_distance"),
+        (lambda: sm.distance_profile(DISTANCES, 1.0, num_bins=1), "num_bins"),
+        (lambda: sm.performance_profile(DISTANCES, DISTANCES, -1.0, 0.0, 1.0), "threshold"),
+        (lambda: sm.performance_profile(DISTANCES, DISTANCES, 0.5, 1.0, 1.0), "min_return < max_return"),
+        (lambda: sm.skill_qd_score(DISTANCES[:3], DISTANCES, 0.5, 0.0, 1.0), "returns and distances"),
+        (lambda: sm.distance_to_skill(FEATURES[:, :1], SKILLS), "mean_features"),
+        (lambda: sm.distance_to_skill(FEATURES, SKILLS[0]), "skills"),
+    ],
+)
+def test_bad_values_are_refused_with_the_name(call, message: str) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(ValueError, match=message):
+        call()
