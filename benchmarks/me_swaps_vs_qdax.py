@@ -14,6 +14,9 @@ it in this environment:
   population, centroids and start state.
 - **qdrl, own population**: the same with qdrl's own initial population (the bench's init key).
 - **QDax from qdrl's population** (`--swap-init`): QDax's run from qdrl's initial population.
+- **corrected QD scores** (`--corrected-samples N`): QDax's final repertoire and qdrl's
+  benchmark run's, each elite re-scored N times from random start states by one program
+  neither run used, the repertoire rebuilt from the medians (`qdrl.qd.reevaluate`).
 - **qdrl as it runs** (`--bench`): `qdrl bench policy_map_elites --seed S` (qdrl's own centroids,
   start state and population), the run `compare_qdax_brax.py` compares with QDax's.
 
@@ -195,6 +198,49 @@ def agreement(trace: str, rescored: str, iteration: int) -> dict[str, Any]:
             "mean_fitness": {k: round(float(np.mean(v[0])), 2) for k, v in evals.items()}, "pairs": pairs}
 
 
+def corrected(trace: str, seed: int, samples: int) -> dict[str, Any]:
+    """QDax's final repertoire and qdrl's (its benchmark run of the same seed), each re-scored
+    `samples` times from random start states by one neutral program (qdrl's random-start
+    scoring, which neither run used) and rebuilt from the medians (`qdrl.qd.reevaluate`)."""
+    import jax
+
+    from qdrl.qd.emitters.ga import isoline_emitter
+    from qdrl.qd.map_elites import MapElites
+    from qdrl.qd.reevaluate import default_key, reevaluate
+    from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire
+    from qdrl.tasks import make_task
+
+    d = np.load(trace)
+    task = make_task("halfcheetah_uni", episode_length=EPISODE, eval_batch=BATCH)
+    random_starts = task.scoring(fixed_start=False)
+    key = default_key(seed)
+    # QDax's final repertoire, rebuilt exactly by inserting its evaluations (see qdrl_side's
+    # insertion check: no cell ever differs).
+    add = jax.jit(lambda rep, g, desc, fit: rep.add(g, desc, fit)[0])
+    rep = cvt_repertoire(task.example_genotype(), jax.numpy.asarray(d["centroids"]),
+                         task.descriptor_low, task.descriptor_high)
+    rep = add(rep, _genotypes(d, "init_"), d["init_descriptors"], d["init_fitness"])
+    for t in range(ITERATIONS):
+        rep = add(rep, jax.tree.map(lambda x, t=t: x[t], _genotypes(d, "off_")), d["descriptors"][t], d["fitness"][t])
+    assert np.array_equal(np.asarray(rep.fitnesses), d["rep_fitness"][-1])
+    qdax = reevaluate(rep, random_starts, key, samples, task.qd_offset)
+    # qdrl's benchmark run (`qdrl.bench.time_policy_map_elites`: the same keys and settings), kept in hand.
+    init_key, cvt_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)
+    centroids = cvt_centroids(cvt_key, 1024, 50_000, task.descriptor_low, task.descriptor_high)
+    me = MapElites(task.scoring_fn, isoline_emitter(BATCH, 0.005, 0.05),
+                   cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high),
+                   task.qd_offset)
+    state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, BATCH), k2))(init_key, run_key)
+    state, _ = jax.jit(lambda s: me.run(s, ITERATIONS))(state)
+    ours = reevaluate(state.repertoire, random_starts, key, samples, task.qd_offset)
+
+    def pick(r: Any) -> dict[str, float]:
+        return {"stored_qd_score": r.stored_metrics["qd_score"], "corrected_qd_score": r.corrected_metrics["qd_score"],
+                "stored_coverage": r.stored_metrics["coverage"], "corrected_coverage": r.corrected_metrics["coverage"]}
+
+    return {"seed": seed, "samples": samples, "qdax": pick(qdax), "qdrl_bench": pick(ours)}
+
+
 def _last_json(text: str) -> dict[str, Any]:
     return json.loads([line for line in text.splitlines() if line.startswith("{")][-1])
 
@@ -216,6 +262,9 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
     for arm in ("qdax_from_qdrl_population", "qdrl_bench"):
         if all(arm in r for r in runs):
             arms[arm] = [r[arm]["qd_score"] for r in runs]
+    if all("corrected" in r for r in runs):
+        for side in ("qdax", "qdrl_bench"):
+            arms[f"{side}_corrected"] = [r["corrected"][side]["corrected_qd_score"] for r in runs]
     return {
         "seeds": len(runs),
         "qd_score": {k: stats(v) for k, v in arms.items()},
@@ -236,14 +285,23 @@ def main() -> None:
     p.add_argument("--keep", action="store_true", help="keep the traces")
     p.add_argument("--swap-init", action="store_true", help="also run QDax from qdrl's initial population")
     p.add_argument("--bench", action="store_true", help="also run qdrl's own benchmark run per seed")
+    p.add_argument("--corrected-samples", type=int, default=0,
+                   help="also re-score QDax's and qdrl's final repertoires this many times per elite "
+                        "from random starts (corrected QD score; 0: not)")
     p.add_argument("--qdrl-only", metavar="TRACE", help="(internal) the qdrl side on one trace")
     p.add_argument("--seed", type=int, default=0, help="(with --qdrl-only)")
     p.add_argument("--init-out", default=None, help="(with --qdrl-only) write qdrl's initial population")
     p.add_argument("--agreement", nargs=2, metavar=("TRACE", "RESCORED"),
                    help="(internal) five evaluations of one iteration's offspring compared")
     p.add_argument("--iteration", type=int, default=-1, help="(with --agreement)")
+    p.add_argument("--corrected", metavar="TRACE",
+                   help="(internal) QDax's final repertoire and qdrl's benchmark run's, re-scored from random starts")
+    p.add_argument("--samples", type=int, default=8, help="(with --corrected) re-evaluations per elite")
     p.add_argument("--out", default=str(HERE / "results" / "map_elites_halfcheetah_uni_swaps.json"))
     args = p.parse_args()
+    if args.corrected:
+        print(json.dumps(corrected(args.corrected, args.seed, args.samples)))
+        return
     if args.agreement:
         print(json.dumps(agreement(*args.agreement, args.iteration)))
         return
@@ -284,6 +342,10 @@ def main() -> None:
                                    check=True, env=env, capture_output=True, text=True).stdout
             b = json.loads(bench[bench.index("{"):])["results"][0]
             rec["qdrl_bench"] = {"qd_score": b["qd_score"], "coverage": b["coverage"]}
+        if args.corrected_samples:
+            cmd = [sys.executable, __file__, "--corrected", str(trace), "--seed", str(seed),
+                   "--samples", str(args.corrected_samples)]
+            rec["corrected"] = _last_json(subprocess.run(cmd, check=True, env=env, capture_output=True, text=True).stdout)
         if not args.keep:
             trace.unlink()
         runs.append(rec)
