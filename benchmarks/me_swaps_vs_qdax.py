@@ -1,4 +1,5 @@
-"""MAP-Elites on halfcheetah_uni, qdrl against QDax 0.5.0, by controlled swaps (issue 32's gap).
+"""MAP-Elites on halfcheetah_uni, qdrl against QDax 0.5.0, by controlled swaps (the QD score gap of
+`compare_qdax_brax.py`).
 
 Per seed, QDax's run is traced (`qdax_me_trace.py`, in QDax's environment: every offspring,
 its fitness and descriptor, the repertoire after each iteration), then qdrl replays parts of
@@ -17,6 +18,9 @@ it in this environment:
 - **corrected QD scores** (`--corrected-samples N`): QDax's final repertoire and qdrl's
   benchmark run's, each elite re-scored N times from random start states by one program
   neither run used, the repertoire rebuilt from the medians (`qdrl.qd.reevaluate`).
+- **agreement** (`--agreement TRACE RESCORED`, after `qdax_me_trace.py --rescore`): one
+  iteration's offspring scored five ways (QDax in its run's scan, QDax batched apart, QDax one
+  at a time, qdrl batched, qdrl one at a time), compared pair by pair.
 - **qdrl as it runs** (`--bench`): `qdrl bench policy_map_elites --seed S` (qdrl's own centroids,
   start state and population), the run `compare_qdax_brax.py` compares with QDax's.
 
