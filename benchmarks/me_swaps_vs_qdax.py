@@ -62,6 +62,43 @@ def _qd(fitnesses: np.ndarray, offset: float) -> float:
     return float(np.sum(fitnesses[filled].astype(np.float64) + offset))
 
 
+def _scoring_from(start_key: Any, eval_batch: int, warm: Any) -> tuple[Any, Any]:
+    """qdrl's halfcheetah_uni task and its jitted scoring, every policy started from the state of
+    QDax's `start_key` (qdrl's tasks compute their one start state at the first call: made here,
+    on `warm`, while `fixed_start_state` is patched)."""
+    import jax
+
+    from qdrl.tasks import make_task
+    from qdrl.tasks import policy as policy_module
+
+    fixed = policy_module.fixed_start_state
+    policy_module.fixed_start_state = lambda env, _key: fixed(env, start_key)
+    try:
+        task = make_task("halfcheetah_uni", episode_length=EPISODE, eval_batch=eval_batch)
+        score = jax.jit(task.scoring_fn)
+        score(warm, jax.random.PRNGKey(0))
+    finally:
+        policy_module.fixed_start_state = fixed
+    return task, score
+
+
+def _qdax_repertoires(d: Any, task: Any) -> list[Any]:
+    """QDax's run's repertoire after its initial population and after each iteration, rebuilt by
+    inserting QDax's own evaluations, in its order, into qdrl's CVT repertoire (QDax's centroids)."""
+    import jax
+
+    from qdrl.qd.repertoires import cvt_repertoire
+
+    add = jax.jit(lambda rep, g, desc, fit: rep.add(g, desc, fit)[0])
+    rep = cvt_repertoire(task.example_genotype(), jax.numpy.asarray(d["centroids"]),
+                         task.descriptor_low, task.descriptor_high)
+    reps = [add(rep, _genotypes(d, "init_"), d["init_descriptors"], d["init_fitness"])]
+    offspring = _genotypes(d, "off_")
+    for t in range(ITERATIONS):
+        reps.append(add(reps[-1], jax.tree.map(lambda x, t=t: x[t], offspring), d["descriptors"][t], d["fitness"][t]))
+    return reps
+
+
 def qdrl_side(trace: str, seed: int, init_out: str | None) -> dict[str, Any]:
     import jax
     import jax.numpy as jnp
@@ -69,20 +106,10 @@ def qdrl_side(trace: str, seed: int, init_out: str | None) -> dict[str, Any]:
     from qdrl.qd.emitters.ga import isoline_emitter
     from qdrl.qd.map_elites import MapElites
     from qdrl.qd.repertoires import cvt_repertoire
-    from qdrl.tasks import make_task
-    from qdrl.tasks import policy as policy_module
 
     d = np.load(trace)
     offset = float(d["qd_offset"])  # QDax's: reward offset x episode length (qdrl's qd_offset is its negative)
-    start_key = jnp.asarray(d["start_key"], jnp.uint32)
-    fixed = policy_module.fixed_start_state
-    policy_module.fixed_start_state = lambda env, _key: fixed(env, start_key)  # QDax's start state
-    try:
-        task = make_task("halfcheetah_uni", episode_length=EPISODE, eval_batch=BATCH)
-        score = jax.jit(task.scoring_fn)
-        score(_genotypes(d, "init_"), jax.random.PRNGKey(0))  # computes the start state once, patched
-    finally:
-        policy_module.fixed_start_state = fixed
+    task, score = _scoring_from(jnp.asarray(d["start_key"], jnp.uint32), BATCH, _genotypes(d, "init_"))
     assert abs(task.qd_offset + offset) < 1e-3, (task.qd_offset, offset)
     centroids = jnp.asarray(d["centroids"])
 
@@ -93,15 +120,13 @@ def qdrl_side(trace: str, seed: int, init_out: str | None) -> dict[str, Any]:
     off = [jax.tree.map(lambda x, t=t: x[t], _genotypes(d, "off_")) for t in range(ITERATIONS)]
 
     # 1. Insertion: QDax's evaluations into qdrl's repertoire.
-    rep = add(empty(), _genotypes(d, "init_"), d["init_descriptors"], d["init_fitness"])
-    mismatch = [int(np.sum(np.asarray(rep.fitnesses) != d["init_rep_fitness"]))]
-    for t in range(ITERATIONS):
-        rep = add(rep, off[t], d["descriptors"][t], d["fitness"][t])
-        mismatch.append(int(np.sum(np.asarray(rep.fitnesses) != d["rep_fitness"][t])))
+    reps = _qdax_repertoires(d, task)
+    stored = [d["init_rep_fitness"], *d["rep_fitness"]]
+    mismatch = [int(np.sum(np.asarray(rep.fitnesses) != f)) for rep, f in zip(reps, stored, strict=True)]
     insertion = {
         "cells_differing_per_iteration_max": max(mismatch),
         "first_iteration_differing": next((i for i, m in enumerate(mismatch) if m), None),
-        "qd_score": _qd(np.asarray(rep.fitnesses), offset),
+        "qd_score": _qd(np.asarray(reps[-1].fitnesses), offset),
     }
 
     # 2. Evaluation: QDax's offspring scored by qdrl, inserted in QDax's order.
@@ -159,22 +184,13 @@ def agreement(trace: str, rescored: str, iteration: int) -> dict[str, Any]:
     import jax
     import jax.numpy as jnp
 
-    from qdrl.tasks import make_task
-    from qdrl.tasks import policy as policy_module
-
     d, r = np.load(trace), np.load(rescored)
     start_key = jnp.asarray(d["start_key"], jnp.uint32)
     genotypes = jax.tree.map(lambda x: x[iteration], _genotypes(d, "off_"))
-    fixed = policy_module.fixed_start_state
-    policy_module.fixed_start_state = lambda env, _key: fixed(env, start_key)
-    try:
-        batched = make_task("halfcheetah_uni", episode_length=EPISODE, eval_batch=BATCH)
-        ev = jax.jit(batched.scoring_fn)(genotypes, jax.random.PRNGKey(0))
-        single = make_task("halfcheetah_uni", episode_length=EPISODE, eval_batch=1)
-        one = jax.jit(single.scoring_fn)
-        ones = [one(jax.tree.map(lambda x, i=i: x[i : i + 1], genotypes), jax.random.PRNGKey(0)) for i in range(BATCH)]
-    finally:
-        policy_module.fixed_start_state = fixed
+    _, batched = _scoring_from(start_key, BATCH, genotypes)
+    ev = batched(genotypes, jax.random.PRNGKey(0))
+    _, one = _scoring_from(start_key, 1, jax.tree.map(lambda x: x[:1], genotypes))
+    ones = [one(jax.tree.map(lambda x, i=i: x[i : i + 1], genotypes), jax.random.PRNGKey(0)) for i in range(BATCH)]
     evals = {
         "qdax_scan": (r["scan_fitness"], r["scan_descriptors"]),
         "qdax_batch": (r["batch_fitness"], r["batch_descriptors"]),
@@ -208,34 +224,20 @@ def corrected(trace: str, seed: int, samples: int) -> dict[str, Any]:
     scoring, which neither run used) and rebuilt from the medians (`qdrl.qd.reevaluate`)."""
     import jax
 
-    from qdrl.qd.emitters.ga import isoline_emitter
-    from qdrl.qd.map_elites import MapElites
+    from qdrl.bench import policy_map_elites_setup
     from qdrl.qd.reevaluate import default_key, reevaluate
-    from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire
-    from qdrl.tasks import make_task
 
     d = np.load(trace)
-    task = make_task("halfcheetah_uni", episode_length=EPISODE, eval_batch=BATCH)
+    # qdrl's benchmark run of this seed (`qdrl bench policy_map_elites`'s setup), kept in hand.
+    task, me, state = policy_map_elites_setup("halfcheetah_uni", episode_length=EPISODE, batch_size=BATCH,
+                                              seed=seed, eval_batch=BATCH)
+    state, _ = jax.jit(lambda s: me.run(s, ITERATIONS))(state)
     random_starts = task.scoring(fixed_start=False)
     key = default_key(seed)
-    # QDax's final repertoire, rebuilt exactly by inserting its evaluations (see qdrl_side's
-    # insertion check: no cell ever differs).
-    add = jax.jit(lambda rep, g, desc, fit: rep.add(g, desc, fit)[0])
-    rep = cvt_repertoire(task.example_genotype(), jax.numpy.asarray(d["centroids"]),
-                         task.descriptor_low, task.descriptor_high)
-    rep = add(rep, _genotypes(d, "init_"), d["init_descriptors"], d["init_fitness"])
-    for t in range(ITERATIONS):
-        rep = add(rep, jax.tree.map(lambda x, t=t: x[t], _genotypes(d, "off_")), d["descriptors"][t], d["fitness"][t])
+    # QDax's final repertoire, rebuilt exactly (qdrl_side's insertion check: no cell ever differs).
+    rep = _qdax_repertoires(d, task)[-1]
     assert np.array_equal(np.asarray(rep.fitnesses), d["rep_fitness"][-1])
     qdax = reevaluate(rep, random_starts, key, samples, task.qd_offset)
-    # qdrl's benchmark run (`qdrl.bench.time_policy_map_elites`: the same keys and settings), kept in hand.
-    init_key, cvt_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)
-    centroids = cvt_centroids(cvt_key, 1024, 50_000, task.descriptor_low, task.descriptor_high)
-    me = MapElites(task.scoring_fn, isoline_emitter(BATCH, 0.005, 0.05),
-                   cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high),
-                   task.qd_offset)
-    state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, BATCH), k2))(init_key, run_key)
-    state, _ = jax.jit(lambda s: me.run(s, ITERATIONS))(state)
     ours = reevaluate(state.repertoire, random_starts, key, samples, task.qd_offset)
 
     def pick(r: Any) -> dict[str, float]:

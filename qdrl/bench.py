@@ -33,9 +33,9 @@ from qdrl.agents.skill_discovery import make_skill_discovery
 from qdrl.agents.smerl import SMERLConfig
 from qdrl.off_policy import TrainConfig, make_trainer
 from qdrl.qd.emitters.ga import isoline_emitter
-from qdrl.qd.map_elites import MapElites
+from qdrl.qd.map_elites import MapElites, QDState
 from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire, grid_repertoire
-from qdrl.tasks import make_task
+from qdrl.tasks import Task, make_task
 
 BenchFn = Callable[..., list[dict[str, Any]]]  # (quick, seed, config) -> records
 BENCHES: dict[str, BenchFn] = {}
@@ -324,6 +324,29 @@ def time_task(
     return record
 
 
+def policy_map_elites_setup(
+    name: str,
+    *,
+    episode_length: int = 100,
+    batch_size: int = 128,
+    num_centroids: int = 1024,
+    cvt_samples: int = 50_000,
+    iso_sigma: float = 0.005,
+    line_sigma: float = 0.05,
+    seed: int = 0,
+    eval_batch: int | None = 128,
+) -> tuple[Task, MapElites, QDState]:
+    """The task, the MAP-Elites and its initial state of `time_policy_map_elites` (same keys:
+    `init_key, cvt_key, run_key = split(PRNGKey(seed), 3)`), for a caller that runs it itself."""
+    task = make_task(name, episode_length=episode_length, eval_batch=eval_batch)
+    init_key, cvt_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)
+    centroids = cvt_centroids(cvt_key, num_centroids, cvt_samples, task.descriptor_low, task.descriptor_high)
+    repertoire = cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high)
+    me = MapElites(task.scoring_fn, isoline_emitter(batch_size, iso_sigma, line_sigma), repertoire, task.qd_offset)
+    state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, batch_size), k2))(init_key, run_key)
+    return task, me, state
+
+
 def time_policy_map_elites(
     name: str,
     *,
@@ -347,12 +370,10 @@ def time_policy_map_elites(
     """
 
     eval_batch = batch_size if blocks else None
-    task = make_task(name, episode_length=episode_length, eval_batch=eval_batch)
-    init_key, cvt_key, run_key = jax.random.split(jax.random.PRNGKey(seed), 3)
-    centroids = cvt_centroids(cvt_key, num_centroids, cvt_samples, task.descriptor_low, task.descriptor_high)
-    repertoire = cvt_repertoire(task.example_genotype(), centroids, task.descriptor_low, task.descriptor_high)
-    me = MapElites(task.scoring_fn, isoline_emitter(batch_size, iso_sigma, line_sigma), repertoire, task.qd_offset)
-    state = jax.jit(lambda k1, k2: me.init(task.init_genotypes(k1, batch_size), k2))(init_key, run_key)
+    _, me, state = policy_map_elites_setup(
+        name, episode_length=episode_length, batch_size=batch_size, num_centroids=num_centroids,
+        cvt_samples=cvt_samples, iso_sigma=iso_sigma, line_sigma=line_sigma, seed=seed, eval_batch=eval_batch,
+    )
     timed = _time_run(me, state, iterations, with_hlo=hlo)
     compile_s, run_s, metrics = timed.compile_s, timed.run_s, timed.metrics
     record = {

@@ -80,9 +80,8 @@ def distance_to_skill(mean_features: Array, skills: Array, angles: bool = False)
         )
     targets = skills[:, None, :] if replicated else skills
     diff = mean_features - targets
-    if angles:
-        arc = jnp.abs(jnp.mod(diff + jnp.pi, 2 * jnp.pi) - jnp.pi)
-        diff = arc
+    if angles:  # the shorter arc between two angles, in [0, pi]
+        diff = jnp.abs(jnp.mod(diff + jnp.pi, 2 * jnp.pi) - jnp.pi)
     dist = jnp.linalg.norm(diff, axis=-1)
     return jnp.mean(dist, axis=1) if replicated else dist
 
