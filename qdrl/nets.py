@@ -115,3 +115,25 @@ def twin_q_critic(
         return jnp.concatenate(qs, axis=-1)
 
     return hk.without_apply_rng(hk.transform(forward))
+
+
+def twin_vector_critic(
+    size: int, hidden: Sequence[int] = (256, 256), act: str = "relu", num_critics: int = 2
+) -> hk.Transformed:
+    """(obs, action) -> vectors of shape (..., num_critics, size), one MLP per critic: the
+    successor features psi(s, a) of QDAC (Grillotti et al. 2024), twinned like Q critics."""
+
+    def forward(obs: Array, action: Array) -> Array:
+        x = jnp.concatenate([obs, action], axis=-1)
+        return jnp.stack([_mlp(hidden, size, act, f"psi{i}")(x) for i in range(num_critics)], axis=-2)
+
+    return hk.without_apply_rng(hk.transform(forward))
+
+
+def scalar_head(hidden: Sequence[int] = (256, 256), act: str = "relu", name: str = "head") -> hk.Transformed:
+    """obs -> a scalar per input (...,): e.g. the logit of QDAC's Lagrange multiplier lambda(s, z)."""
+
+    def forward(obs: Array) -> Array:
+        return _mlp(hidden, 1, act, name)(obs)[..., 0]
+
+    return hk.without_apply_rng(hk.transform(forward))

@@ -533,7 +533,7 @@ class LoadedRun:
             return None
         if isinstance(skill, bool) or not isinstance(skill, int | np.integer) or not 0 <= skill < k:
             raise RunError(
-                f"skill: expected an int in [0, {k}) (skills.num_skills of this {self.algorithm} run), got {skill!r}"
+                f"skill: expected an int in [0, {k}) ({parts.skills_are} of this {self.algorithm} run), got {skill!r}"
             )
         return int(skill)
 

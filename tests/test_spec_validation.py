@@ -263,6 +263,8 @@ ANY_FINITE_NUMBER = {
     ("skills", "diversity_scale"), ("skills", "extrinsic_scale"),  # reward weights, either sign
     ("smerl", "target"),  # a target return, either sign
     ("archive", "fitness_range"), ("repertoire", "fitness_range"),  # a return range, either sign (min < max checked)
+    ("evaluation", "return_range"),  # the same for feature-space skills' profiles
+    ("uvfa", "extrinsic_scale"),  # a reward weight, either sign
 }
 
 

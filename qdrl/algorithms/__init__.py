@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import difflib
 
-from qdrl.algorithms import cma_es, mo, pbt, qd, rl, skills
+from qdrl.algorithms import cma_es, feature_skills, mo, pbt, qd, rl, skills
 from qdrl.algorithms.base import Algorithm, BuildContext, ExperimentConfig, LogConfig, Recipe
 from qdrl.config import ConfigError
 
@@ -43,6 +43,9 @@ ALGORITHMS: dict[str, Recipe] = {
     "dads": skills.DADS,
     "smerl_diayn": skills.SMERL_DIAYN,
     "smerl_dads": skills.SMERL_DADS,
+    # skills as targets in a feature space, measured by distance to skill
+    "qdac": feature_skills.QDAC,
+    "uvfa": feature_skills.UVFA,
     # MAP-Elites with the emitters of the registry
     "map_elites": qd.MAP_ELITES,
     "cvt_map_elites": qd.CVT_MAP_ELITES,

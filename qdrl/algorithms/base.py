@@ -160,6 +160,9 @@ class AgentParts(NamedTuple):
     # deterministic policy: observations (..., obs_size) -> actions (..., action_size); jittable.
     policy: Callable[[Any, int | None], Callable[[Any], Any]]
     evaluation: Callable[[Any, Callable[[Any], Any] | None], tuple[Any, Any]]
+    # What the skills are, for messages: "skills.num_skills" skills, or feature-space runs' fixed
+    # "train.num_eval_envs evaluation skills".
+    skills_are: str = "skills.num_skills"
 
 
 class Algorithm(NamedTuple):

@@ -133,7 +133,9 @@ class SkillLog:
 
     skills.csv columns: `log_point`, `env_steps`, `episode` (episode i plays skill
     i % K), `skill`, `return`, `length`, the descriptor columns (`skill_columns`)
-    and `cell` (the passive-archive cell of the episode's descriptor).
+    and `cell` (the passive-archive cell of the episode's descriptor); for feature-space
+    skills (episodes with `targets` and `distances`), the skill's target
+    (`target_<name>`) and the episode's `distance` to it.
     """
 
     descriptor_names: Sequence[str]
@@ -156,6 +158,10 @@ class SkillLog:
             }
             row.update({c: float(v) for c, v in zip(columns, descriptors[i], strict=True)})
             row["cell"] = int(cells[i])
+            if "targets" in episodes:  # feature-space skills: the target and its distance
+                targets = np.asarray(episodes["targets"])[i]
+                row.update({f"target_{c[len('descriptor_'):]}": float(v) for c, v in zip(columns, targets, strict=True)})
+                row["distance"] = float(np.asarray(episodes["distances"])[i])
             self.rows.append(row)
         if log_point in self.shown:
             self.trajectories[log_point] = (env_steps, np.asarray(trajectories), np.asarray(mask))

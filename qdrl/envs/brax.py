@@ -3,10 +3,21 @@
 The raw brax environment (`brax.envs.get_environment`) has no time limit and no
 automatic reset; qdrl's `Env` base adds both, keeping termination apart from
 truncation. The state descriptor is a function of the brax pipeline state, picked
-by name: the torso's x-y position ("xy", final-position tasks and skill
-discovery) or which feet touch the ground ("feet_contact", the feet-contact QD
-tasks). The reward is brax's own, or a variant of it (`reward="no_forward"`:
-brax's reward without its forward term, for the omni-directional tasks).
+by name (`STATE_DESCRIPTORS`):
+
+- "xy": the torso's x-y position (final-position tasks and skill discovery);
+- "feet_contact": which feet touch the ground, 0/1 per foot (the feet-contact QD tasks);
+- "velocity": the torso's linear velocity, x-y for the ant and the humanoid, x for
+  the planar robots;
+- "jump": the height of the lowest of the system's contact points (one dimension);
+- "angle": the body's heading in the x-y plane as (cos, sin), "angle_raw" as the
+  angle in [-pi, pi].
+
+The last four, with feet contact, are the feature functions of QDAC (Grillotti,
+Faldor, González León and Cully, ICML 2024, "Quality-Diversity Actor-Critic",
+`dreamerv3/embodied/core/feat_wrappers.py`). The reward is brax's own, or a variant
+of it (`reward="no_forward"`: brax's reward without its forward term, for the
+omni-directional tasks).
 
 Besides brax's registry, two walled ant environments are available by name:
 "antmaze" and "anttrap" (`qdrl.envs.brax_walls`).
@@ -73,6 +84,28 @@ FEET_NAMES: dict[str, tuple[str, ...]] = {
 }
 
 
+# The link whose linear velocity is the velocity feature and whose heading is the angle feature
+# (QDAC's `COG_NAMES`: "torso" for every robot), and the robots whose heading is another link's.
+TORSO = "torso"
+HEADING_LINK: dict[str, str] = {"humanoid": "pelvis"}
+
+# Dimensions of the velocity feature: x-y for the robots that roam the plane, x for the planar
+# ones (QDAC's `VELOCITY_BOUNDS`).
+VELOCITY_DIMS: dict[str, int] = {
+    "ant": 2,
+    "humanoid": 2,
+    "walker2d": 1,
+    "halfcheetah": 1,
+    "hopper": 1,
+}
+
+# Names of the dimensions of the QDAC features that do not depend on the robot's feet.
+VELOCITY_NAMES = ("x velocity", "y velocity")
+JUMP_NAMES = ("lowest contact height",)
+ANGLE_NAMES = ("heading cos", "heading sin")
+ANGLE_RAW_NAMES = ("heading",)
+
+
 def torso_xy(pipeline_state: Any) -> Array:
     """x-y position of the first body (the torso in every brax locomotion robot)."""
     return pipeline_state.x.pos[0, :2]
@@ -102,6 +135,13 @@ def feet_links(name: str, link_names: Sequence[str]) -> tuple[int, ...]:
     return tuple(idx)
 
 
+def _contacts(sys: Any, pipeline_state: Any) -> Any:
+    """The pipeline state's contacts, or those computed from its link transforms (spring,
+    positional and generalized keep them only with `debug=True`); None without collision pairs."""
+    c = pipeline_state.contact
+    return _lib().contact.get(sys, pipeline_state.x) if c is None else c
+
+
 def feet_contact(sys: Any, feet: Sequence[int], pipeline_state: Any) -> Array:
     """(n_feet,) 1.0 where a foot touches something (a contact with distance < 0), else 0.0.
 
@@ -114,9 +154,7 @@ def feet_contact(sys: Any, feet: Sequence[int], pipeline_state: Any) -> Array:
     (the physics step makes n_frames of them): a noticeable share of an ant's env
     step, next to nothing on humanoid (figures in docs/benchmarks.md).
     """
-    c = pipeline_state.contact
-    if c is None:
-        c = _lib().contact.get(sys, pipeline_state.x)
+    c = _contacts(sys, pipeline_state)
     if c is None:  # a system without any collision pair
         return jnp.zeros((len(feet),), jnp.float32)
     foot = jnp.asarray(feet, jnp.int32)[:, None]
@@ -124,6 +162,38 @@ def feet_contact(sys: Any, feet: Sequence[int], pipeline_state: Any) -> Array:
     involved = (link_1 == foot) | (link_2 == foot)  # (n_feet, n_contacts)
     touching = involved & (jnp.asarray(c.dist)[None, :] < 0.0)
     return jnp.any(touching, axis=1).astype(jnp.float32)
+
+
+def lowest_contact_height(sys: Any, pipeline_state: Any) -> Array:
+    """(1,) height of the lowest contact point among all of the system's contact candidates.
+
+    QDAC's jump feature (`JumpWrapper`): brax places a candidate's point midway between
+    its two geoms, so a foot `h` above the floor gives `h / 2`, and a foot sinking into
+    it a negative height. brax's locomotion robots only collide with the floor, so this
+    is half the lowest gap between a colliding body part and the floor.
+    """
+    c = _contacts(sys, pipeline_state)
+    if c is None:
+        raise ValueError("the jump descriptor needs contacts; this system has no collision pair")
+    return jnp.min(jnp.asarray(c.pos)[..., 2], axis=-1, keepdims=True)
+
+
+def heading(rot: Array) -> Array:
+    """() angle in [-pi, pi] from the x-axis to the x-y projection of the x-axis rotated by `rot`.
+
+    `rot` is a (4,) quaternion (w, x, y, z) of any non-zero norm. The rotated x-axis is
+    (w^2 + x^2 - y^2 - z^2, 2 (xy + wz), 2 (xz - wy)) / |rot|^2, the first column of the
+    rotation matrix; QDAC's `AngleWrapper` takes the angle of its x-y components.
+    """
+    w, x, y, z = (rot[..., i] for i in range(4))
+    return jnp.arctan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)
+
+
+def _link_index(name: str, link_names: Sequence[str], link: str) -> int:
+    links = list(link_names)
+    if link not in links:
+        raise ValueError(f"{name}: no link called {link!r} in {links}")
+    return links.index(link)
 
 
 def _xy_factory(name: str, brax_env: Any) -> DescriptorFn:
@@ -141,10 +211,65 @@ def _feet_contact_factory(name: str, brax_env: Any) -> DescriptorFn:
     return descriptor
 
 
+def _velocity_factory(name: str, brax_env: Any) -> DescriptorFn:
+    """QDAC's velocity feature: the torso's linear velocity, its first `VELOCITY_DIMS` components."""
+    robot = robot_of(name)
+    if robot not in VELOCITY_DIMS:
+        raise ValueError(f"no velocity feature known for {name!r}; known: {sorted(VELOCITY_DIMS)}")
+    torso, dims = _link_index(name, brax_env.sys.link_names, TORSO), VELOCITY_DIMS[robot]
+
+    def descriptor(pipeline_state: Any) -> Array:
+        return pipeline_state.xd.vel[torso, :dims]
+
+    return descriptor
+
+
+def _jump_factory(name: str, brax_env: Any) -> DescriptorFn:
+    """QDAC's jump feature: `lowest_contact_height`."""
+    del name
+    sys = brax_env.sys
+
+    def descriptor(pipeline_state: Any) -> Array:
+        return lowest_contact_height(sys, pipeline_state)
+
+    return descriptor
+
+
+def _heading_factory(trigonometric: bool) -> DescriptorFactory:
+    """QDAC's angle feature: the `heading` of the torso (the humanoid's pelvis), as (cos, sin)
+    (QDAC's default, an `AngularSpace`) or as the angle (`trigonometric=False`)."""
+
+    def factory(name: str, brax_env: Any) -> DescriptorFn:
+        idx = _link_index(name, brax_env.sys.link_names, HEADING_LINK.get(robot_of(name), TORSO))
+
+        def descriptor(pipeline_state: Any) -> Array:
+            angle = heading(pipeline_state.x.rot[idx])
+            return jnp.stack([jnp.cos(angle), jnp.sin(angle)]) if trigonometric else angle[None]
+
+        return descriptor
+
+    return factory
+
+
 STATE_DESCRIPTORS: dict[str, DescriptorFactory] = {
     "xy": _xy_factory,
     "feet_contact": _feet_contact_factory,
+    "velocity": _velocity_factory,
+    "jump": _jump_factory,
+    "angle": _heading_factory(trigonometric=True),
+    "angle_raw": _heading_factory(trigonometric=False),
 }
+
+
+def state_descriptor_names(descriptor: str, name: str) -> tuple[str, ...] | None:
+    """Names of the dimensions of the state descriptor `descriptor` of environment `name`
+    (None where `Env.descriptor_names` picks its defaults: "xy", unknown robots)."""
+    robot = robot_of(name)
+    if descriptor == "feet_contact":
+        return FEET_NAMES.get(robot)
+    if descriptor == "velocity":
+        return VELOCITY_NAMES[: VELOCITY_DIMS[robot]] if robot in VELOCITY_DIMS else None
+    return {"jump": JUMP_NAMES, "angle": ANGLE_NAMES, "angle_raw": ANGLE_RAW_NAMES}.get(descriptor)
 
 
 def no_forward_reward(name: str) -> RewardFn:
@@ -232,8 +357,8 @@ class BraxEnv(Env):
       name: a name from `brax_env_names()`.
       backend: brax physics pipeline, one of `BACKENDS`.
       episode_length: time limit (truncation).
-      state_descriptor: a name from `STATE_DESCRIPTORS` ("xy", "feet_contact") or a
-        function of the pipeline state.
+      state_descriptor: a name from `STATE_DESCRIPTORS` ("xy", "feet_contact", "velocity",
+        "jump", "angle", "angle_raw") or a function of the pipeline state.
       reward: None (brax's reward), a name from `REWARDS` ("no_forward") or a
         function of the brax state after the step.
       env_kwargs: passed to the brax environment's constructor.
@@ -268,9 +393,8 @@ class BraxEnv(Env):
         self.episode_length = episode_length
         self.brax_env = make_brax_env(name, backend, **env_kwargs)
         self.action_size = int(self.brax_env.action_size)
-        if state_descriptor == "feet_contact":
-            self._descriptor_names = FEET_NAMES.get(robot_of(name))
         if isinstance(state_descriptor, str):
+            self._descriptor_names = state_descriptor_names(state_descriptor, name)
             state_descriptor = STATE_DESCRIPTORS[state_descriptor](name, self.brax_env)
         self._descriptor = state_descriptor
         self._reward: RewardFn | None = REWARDS[reward](name) if isinstance(reward, str) else reward

@@ -53,6 +53,8 @@ _WHERE = {
     "draw_walls": "skills",
     "env_walls": "skills",
     "plot_skills": "skills",
+    "plot_feature_skills": "feature_skills",
+    "plot_profiles": "feature_skills",
     "Elites": "sources",
     "elites_of": "sources",
     "plot_parallel_axes": "summary",
@@ -68,6 +70,7 @@ if TYPE_CHECKING:
     from qdrl.plotting._common import _tidy_x as _tidy_x
     from qdrl.plotting.curves import _draw_comparison as _draw_comparison
     from qdrl.plotting.curves import default_x_keys, default_y_keys, plot_comparison, plot_curves
+    from qdrl.plotting.feature_skills import plot_feature_skills, plot_profiles
     from qdrl.plotting.pareto import plot_cell_fronts, plot_cell_hypervolumes, plot_pareto_front
     from qdrl.plotting.repertoires import _colour_scale as _colour_scale
     from qdrl.plotting.repertoires import _draw_repertoire as _draw_repertoire
@@ -103,8 +106,10 @@ __all__ = [
     "plot_cell_hypervolumes",
     "plot_comparison",
     "plot_curves",
+    "plot_feature_skills",
     "plot_parallel_axes",
     "plot_pareto_front",
+    "plot_profiles",
     "plot_qd_summary",
     "plot_repertoire",
     "plot_repertoires",

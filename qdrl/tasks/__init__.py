@@ -12,6 +12,7 @@ from typing import Any
 
 from qdrl.tasks.arm import arm, noisy_arm
 from qdrl.tasks.base import Task, TaskEntry
+from qdrl.tasks.brax_features import FEATURE_TASKS
 from qdrl.tasks.brax_qd import BRAX_TASKS
 from qdrl.tasks.deceptive import archimedean_spiral, deceptive_evolvability, ssf
 from qdrl.tasks.functions import rastrigin, rastrigin_proj, sphere, sphere_proj
@@ -34,7 +35,12 @@ _FUNCTIONS: dict[str, Callable[..., Task]] = {
     "deceptive_evolvability": deceptive_evolvability,
     "ssf": ssf,
 }
-_POLICIES: dict[str, Callable[..., Task]] = {"point_maze": point_maze, "snake": snake, **BRAX_TASKS}
+_POLICIES: dict[str, Callable[..., Task]] = {
+    "point_maze": point_maze,
+    "snake": snake,
+    **BRAX_TASKS,
+    **FEATURE_TASKS,
+}
 TASKS: dict[str, TaskEntry] = {
     **{name: TaskEntry(build) for name, build in _FUNCTIONS.items()},
     **{name: TaskEntry(build, policy=True) for name, build in _POLICIES.items()},
