@@ -139,3 +139,25 @@ def distance_score(distances: Array, max_distance: float) -> Array:
     _check_positive(max_distance, "max_distance")
     distances = jnp.asarray(distances, jnp.float32)
     return jnp.sum(jnp.clip(1.0 - distances / max_distance, 0.0, 1.0))
+
+
+def cells_visited(positions: Array, mask: Array, cell_size: float = 1.0) -> Array:
+    """() the number of distinct cells of side `cell_size` that the positions (T, B, D) of the
+    valid steps (`mask` (T, B) > 0) fall in: METRA's state coverage (Park et al. 2024, the
+    count of 1x1 x-y bins the evaluation skills' trajectories visit). Jittable.
+    """
+    _check_positive(cell_size, "cell_size")
+    positions = jnp.asarray(positions, jnp.float32)
+    if positions.ndim != 3 or jnp.shape(mask) != positions.shape[:2]:
+        raise ValueError(
+            f"positions, mask: expected shapes (T, B, D) and (T, B), got {positions.shape} and {jnp.shape(mask)}"
+        )
+    cells = jnp.floor(positions / cell_size).astype(jnp.int32).reshape(-1, positions.shape[-1])
+    valid = jnp.asarray(mask).reshape(-1) > 0
+    # invalid steps take the first valid step's cell, which is counted anyway
+    first = cells[jnp.argmax(valid)]
+    cells = jnp.where(valid[:, None], cells, first)
+    order = jnp.lexsort(tuple(cells[:, i] for i in reversed(range(cells.shape[-1]))))
+    ordered = cells[order]
+    new = jnp.any(ordered[1:] != ordered[:-1], axis=-1)
+    return jnp.where(jnp.any(valid), 1 + jnp.sum(new), 0)

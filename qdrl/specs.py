@@ -10,7 +10,8 @@ directory beside the `qdrl` package is used instead.
     qdrl run agents/default.toml     # a path works as before
 
 Folders of packaged specs: `seed_benchmark/` (the skill-discovery benchmark of Chalumeau,
-Boige et al. 2023, one spec per algorithm and task) and `suites/` (suite files, `qdrl suite`).
+Boige et al. 2023, one spec per algorithm and task), `metra_baselines/` (DIAYN and DADS at
+METRA's 2-core settings, for the `metra_cpu` suite) and `suites/` (suite files, `qdrl suite`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from qdrl.config import ConfigError, apply_overrides, load_toml
 __all__ = ["SPEC_FOLDERS", "describe", "resolve", "spec_dir", "spec_names"]
 
 # The folders of packaged specs whose files `resolve` finds as "<folder>/<name>".
-SPEC_FOLDERS = ("seed_benchmark",)
+SPEC_FOLDERS = ("seed_benchmark", "metra_baselines")
 
 
 def spec_dir() -> Path | None:

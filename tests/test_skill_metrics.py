@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -81,3 +83,21 @@ def test_skill_qd_score_and_distance_score() -> None:
 def test_bad_values_are_refused_with_the_name(call, message: str) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(ValueError, match=message):
         call()
+
+
+def test_cells_visited_counts_distinct_unit_cells_of_the_valid_steps() -> None:
+    # one episode visiting (0.5, 0.5) -> (1.5, 0.5) -> (1.7, 0.2) (same cell) -> (-0.5, 0.1),
+    # a second episode whose last step is masked out (it would add cell (5, 5))
+    positions = jnp.array([
+        [[0.5, 0.5], [0.2, 0.3]],
+        [[1.5, 0.5], [0.9, 0.9]],
+        [[1.7, 0.2], [5.5, 5.5]],
+        [[-0.5, 0.1], [5.5, 5.5]],
+    ])
+    mask = jnp.array([[1, 1], [1, 1], [1, 0], [1, 0]])
+    assert int(sm.cells_visited(positions, mask)) == 3  # (0, 0), (1, 0), (-1, 0)
+    assert int(jax.jit(sm.cells_visited)(positions, jnp.ones((4, 2)))) == 4  # and (5, 5)
+    assert int(sm.cells_visited(positions, mask, cell_size=10.0)) == 2  # (0, 0) and (-1, 0)
+    assert int(sm.cells_visited(positions[..., :1], mask)) == 3  # x alone: 0, 1, -1
+    with pytest.raises(ValueError, match="positions, mask"):
+        sm.cells_visited(positions[0], mask)

@@ -1,13 +1,16 @@
-"""Skill discovery one call away: SAC on a skill-conditioned environment with DIAYN's or DADS's
-intrinsic reward, SMERL's gate on either.
+"""Skill discovery one call away: SAC on a skill-conditioned environment with DIAYN's, DADS's or
+METRA's (LSD's) intrinsic reward, SMERL's gate on any.
 
     sd = make_skill_discovery(env, SACConfig(), DIAYNConfig(num_skills=5), SMERLConfig(target=...))
     trainer = make_trainer(sd.env, sd.agent, TrainConfig(...), sd.storage)
 
-The agent acts on the environment's observation followed by a one-hot skill
-(`qdrl.envs.skills.SkillEnv`); its batches are relabelled by the skill model's
-reward (`qdrl.agents.intrinsic`); SMERL's batches carry each transition's episode
-return (`qdrl.off_policy.EPISODE_RETURNS`).
+The agent acts on the environment's observation followed by a skill code: a one-hot
+(`qdrl.envs.skills.SkillEnv`), or METRA's continuous unit vector (`ContinuousSkillEnv`);
+its batches are relabelled by the skill model's reward (`qdrl.agents.intrinsic`); SMERL's
+batches carry each transition's episode return (`qdrl.off_policy.EPISODE_RETURNS`).
+Evaluations play a fixed set of skills, `sd.codes`: the K one-hots, or (continuous skills)
+one direction per evaluation episode, spread evenly over the circle (d = 2) or drawn once
+from a fixed key.
 """
 
 from __future__ import annotations
@@ -17,23 +20,27 @@ from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from qdrl import off_policy
 from qdrl.agents.base import Agent, AgentState
 from qdrl.agents.dads import DADSConfig, make_dads_module
 from qdrl.agents.diayn import DIAYNConfig, make_diayn_module
 from qdrl.agents.intrinsic import RewardModule, with_skill_model
+from qdrl.agents.metra import METRAConfig, make_metra_module
 from qdrl.agents.sac import SACConfig, make_sac
 from qdrl.agents.smerl import SMERLConfig, smerl_gate
 from qdrl.envs.base import Env
-from qdrl.envs.skills import SkillEnv, append_skill
+from qdrl.envs.skills import ContinuousSkillEnv, SkillEnv, SkillSpace
 from qdrl.rollout import Episodes, RecordFn, run_episodes
 from qdrl.types import Array, PRNGKey
 
 __all__ = [
+    "SkillConfig",
     "SkillDiscovery",
     "episode_descriptors",
     "evaluate_skills",
+    "evaluation_codes",
     "make_skill_discovery",
     "skill_episodes",
     "skill_module",
@@ -41,50 +48,98 @@ __all__ = [
 ]
 
 
+# The skill models' configs (the `[skills]` section).
+SkillConfig = DIAYNConfig | DADSConfig | METRAConfig
+
+
 class SkillDiscovery(NamedTuple):
-    """A skill-discovery agent and what trains it."""
+    """A skill-discovery agent and what trains and evaluates it."""
 
-    env: SkillEnv  # the environment with the skill appended to its observation
+    env: SkillEnv | ContinuousSkillEnv  # the environment with the skill appended to its observation
     agent: Agent  # SAC with the intrinsic reward (and SMERL's gate)
-    module: RewardModule  # the skill model: discriminator (DIAYN) or skill dynamics (DADS)
+    module: RewardModule  # the skill model: discriminator (DIAYN), skill dynamics (DADS), phi (METRA)
     storage: off_policy.Storage  # where the off-policy loop stores transitions
+    codes: Array  # (K, code size) the evaluation skills' codes; episode i plays skill i % K
+
+    @property
+    def num_skills(self) -> int:
+        """K, the skills an evaluation plays."""
+        return int(self.codes.shape[0])
+
+    @property
+    def base_env(self) -> Env:
+        """The environment without skill."""
+        return self.env.env
 
 
-def skill_module(skills: DIAYNConfig | DADSConfig, obs_size: int, descriptor_size: int) -> RewardModule:
-    """DIAYN's discriminator or DADS's skill-dynamics model, by the config's type."""
+def is_continuous(skills: SkillConfig) -> bool:
+    """Whether the skills are METRA's unit vectors rather than one-hot codes."""
+    return isinstance(skills, METRAConfig) and not skills.discrete
+
+
+def evaluation_codes(skills: SkillConfig, num_eval: int) -> Array:
+    """The codes of the skills evaluations play: the K one-hots, or `num_eval` unit vectors
+    (d = 2: evenly spaced angles; else drawn once from key 0)."""
+    if not is_continuous(skills):
+        return jnp.eye(skills.num_skills, dtype=jnp.float32)
+    d = skills.num_skills
+    if d == 2:
+        theta = 2.0 * np.pi * np.arange(num_eval) / num_eval
+        return jnp.asarray(np.stack([np.cos(theta), np.sin(theta)], axis=-1), jnp.float32)
+    with jax.ensure_compile_time_eval():
+        return SkillSpace((-1.0,) * d, (1.0,) * d, "unit").sample(jax.random.PRNGKey(0), (num_eval,))
+
+
+def skill_module(skills: SkillConfig, obs_size: int, descriptor_size: int) -> RewardModule:
+    """DIAYN's discriminator, DADS's skill-dynamics model or METRA's phi, by the config's type."""
     if isinstance(skills, DIAYNConfig):
         return make_diayn_module(skills, obs_size, descriptor_size)
+    if isinstance(skills, METRAConfig):
+        return make_metra_module(skills, obs_size, descriptor_size)
     return make_dads_module(skills, obs_size, descriptor_size)
 
 
 def make_skill_discovery(
-    env: Env, sac: SACConfig, skills: DIAYNConfig | DADSConfig, smerl: SMERLConfig | None = None
+    env: Env, sac: SACConfig, skills: SkillConfig, smerl: SMERLConfig | None = None, num_eval: int = 0
 ) -> SkillDiscovery:
-    """DIAYN or DADS (by `skills`' type) on `env`; SMERL (Kumar et al. 2020) when `smerl` is given.
+    """DIAYN, DADS or METRA (by `skills`' type) on `env`; SMERL (Kumar et al. 2020) when `smerl`
+    is given. `num_eval`: the evaluation episodes (continuous skills: one skill each).
 
     Raises ValueError for sizes the networks refuse (messages name `skills.` keys for the
     skill model's).
     """
-    skill_env = SkillEnv(env, skills.num_skills)
+    skill_env: SkillEnv | ContinuousSkillEnv
+    if is_continuous(skills):
+        d = skills.num_skills
+        skill_env = ContinuousSkillEnv(env, SkillSpace((-1.0,) * d, (1.0,) * d, "unit"))
+    else:
+        skill_env = SkillEnv(env, skills.num_skills)
     agent = make_sac(sac, skill_env.observation_size, skill_env.action_size)
     module = skill_module(skills, env.observation_size, env.descriptor_size)
     gate = None if smerl is None else smerl_gate(smerl.target, smerl.margin)
     storage = off_policy.REPLAY if smerl is None else off_policy.EPISODE_RETURNS
-    return SkillDiscovery(skill_env, with_skill_model(agent, module, skills, gate), module, storage)
+    codes = evaluation_codes(skills, max(num_eval, 1))
+    return SkillDiscovery(skill_env, with_skill_model(agent, module, skills, gate), module, storage, codes)
+
+
+def with_codes(obs: Array, codes: Array) -> Array:
+    """Observations (..., obs_size) followed by skill codes (..., code size), broadcast over steps."""
+    codes = jnp.broadcast_to(codes, (*obs.shape[:-1], codes.shape[-1]))
+    return jnp.concatenate([obs, codes.astype(obs.dtype)], axis=-1)
 
 
 def skill_policy(sd: SkillDiscovery, agent_state: AgentState, skill: int) -> Callable[[Array], Array]:
     """The deterministic policy of skill `skill`: observations (..., obs_size) of the environment
-    without skill -> actions (..., action_size), the skill's one-hot appended as in training;
+    without skill -> actions (..., action_size), the skill's code appended as in training;
     jittable."""
-    k = sd.env.num_skills
+    k = sd.num_skills
     if isinstance(skill, bool) or not isinstance(skill, int) or not 0 <= skill < k:
         raise ValueError(f"skill: expected an int in [0, {k}), got {skill!r}")
     params = sd.agent.policy_params(agent_state)
+    code = sd.codes[skill]
 
     def policy(obs: Array) -> Array:
-        obs = jnp.asarray(obs, jnp.float32)
-        return sd.agent.policy(params, append_skill(obs, jnp.full(obs.shape[:-1], skill, jnp.int32), k))
+        return sd.agent.policy(params, with_codes(jnp.asarray(obs, jnp.float32), code))
 
     return policy
 
@@ -93,16 +148,15 @@ def skill_episodes(
     sd: SkillDiscovery, agent_state: AgentState, key: PRNGKey, num_episodes: int, record: RecordFn | None = None
 ) -> Episodes:
     """The episodes `evaluate_skills` plays from its `key`'s first half: episode i plays skill
-    i % K deterministically on the environment without skill (`sd.env.env`), from the random
+    i % K deterministically on the environment without skill (`sd.base_env`), from the random
     start the key gives it; `record` as in `run_episodes`. Jittable."""
-    k, env = sd.env.num_skills, sd.env.env
     params = sd.agent.policy_params(agent_state)
-    skills = jnp.arange(num_episodes, dtype=jnp.int32) % k
+    codes = sd.codes[jnp.arange(num_episodes) % sd.num_skills]
 
     def policy(obs: Array, _: PRNGKey) -> Array:
-        return sd.agent.policy(params, append_skill(obs, skills, k))
+        return sd.agent.policy(params, with_codes(obs, codes))
 
-    return run_episodes(env, policy, key, num_episodes, record=record)
+    return run_episodes(sd.base_env, policy, key, num_episodes, record=record)
 
 
 def episode_descriptors(
@@ -129,7 +183,7 @@ def evaluate_skills(
     high: Sequence[float] | None = None,
 ) -> dict[str, Array]:
     """Every skill played deterministically: episode i plays skill i % K on the environment
-    without skill (`sd.env.env`; `skill_episodes` on the first half of `key`); jittable.
+    without skill (`sd.base_env`; `skill_episodes` on the first half of `key`); jittable.
 
     Returns the episodes' mean, std and min return and mean length (`eval_*`), the
     skill model's metrics on the evaluation steps as the training batches see them
@@ -138,15 +192,13 @@ def evaluate_skills(
     "mean", clipped to [low, high] when given), and the `trajectories` of state
     descriptors and `mask`.
     """
-    k = sd.env.num_skills
-    skills = jnp.arange(num_episodes, dtype=jnp.int32) % k
+    codes = sd.codes[jnp.arange(num_episodes) % sd.num_skills]
     run_key, model_key = jax.random.split(key)
     ep = skill_episodes(sd, agent_state, run_key, num_episodes)
     desc = episode_descriptors(ep, descriptor, low, high)
     tr = ep.transitions
     steps = tr.obs.shape[0]
-    per_step = jnp.broadcast_to(skills, (steps, num_episodes))
-    tr = tr._replace(obs=append_skill(tr.obs, per_step, k), next_obs=append_skill(tr.next_obs, per_step, k))
+    tr = tr._replace(obs=with_codes(tr.obs, codes), next_obs=with_codes(tr.next_obs, codes))
     flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), tr)
     _, info = sd.module.reward(agent_state.aux, flat, model_key)
     mask = ep.mask

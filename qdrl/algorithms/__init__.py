@@ -43,6 +43,8 @@ ALGORITHMS: dict[str, Recipe] = {
     "dads": skills.DADS,
     "smerl_diayn": skills.SMERL_DIAYN,
     "smerl_dads": skills.SMERL_DADS,
+    "metra": skills.METRA,
+    "lsd": skills.LSD,
     # skills as targets in a feature space, measured by distance to skill
     "qdac": feature_skills.QDAC,
     "uvfa": feature_skills.UVFA,

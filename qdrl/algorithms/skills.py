@@ -37,8 +37,10 @@ from qdrl import plotting
 from qdrl.agents.base import AgentState
 from qdrl.agents.dads import DADSConfig
 from qdrl.agents.diayn import DIAYNConfig
+from qdrl.agents.metra import METRAConfig
 from qdrl.agents.sac import SACConfig
 from qdrl.agents.skill_discovery import (
+    SkillConfig,
     episode_descriptors,
     evaluate_skills,
     make_skill_discovery,
@@ -74,12 +76,15 @@ from qdrl.off_policy import STATE_AXES, TrainConfig, make_trainer
 from qdrl.qd.repertoires import descriptor_columns
 from qdrl.qd.repertoires.passive import feed
 from qdrl.rollout import Episodes
+from qdrl.skill_metrics import cells_visited
 from qdrl.tasks import TASKS, Task
 from qdrl.types import Array, PRNGKey
 
 __all__ = [
     "DADS",
     "DIAYN",
+    "LSD",
+    "METRA",
     "SKILLS_CSV",
     "SKILL_TASKS",
     "SMERL_DADS",
@@ -98,7 +103,11 @@ SKILL_TASKS: tuple[str, ...] = (
 )
 SkillTaskName = Annotated[str, OneOf(lambda: SKILL_TASKS)]
 # The skill model's metric on the progress bar: its value at the evaluation episodes' last step.
-_MODEL_METRIC = {DIAYNConfig: "discriminator_accuracy", DADSConfig: "dynamics_log_likelihood"}
+_MODEL_METRIC = {
+    DIAYNConfig: "discriminator_accuracy", DADSConfig: "dynamics_log_likelihood", METRAConfig: "phi_step_sq",
+}
+_CONFIGS = {"diayn": DIAYNConfig, "dads": DADSConfig, "metra": METRAConfig, "lsd": METRAConfig}
+Base = Literal["diayn", "dads", "metra", "lsd"]
 SKILLS_CSV = "skills.csv"  # every evaluated episode of a run (`SkillLog`)
 
 
@@ -187,10 +196,8 @@ class SkillLog:
         tmp.replace(path)
 
 
-def parse_skills(
-    spec: Mapping[str, Any], exp: ExperimentConfig, base: Literal["diayn", "dads"], smerl: bool
-) -> Sections:
-    """The checked sections of a DIAYN / DADS (`base`) spec, SMERL on it if `smerl`.
+def parse_skills(spec: Mapping[str, Any], exp: ExperimentConfig, base: Base, smerl: bool) -> Sections:
+    """The checked sections of a DIAYN / DADS / METRA / LSD (`base`) spec, SMERL on it if `smerl`.
 
     `[archive]` stays a table of the keys the spec gives (each checked): the build
     completes it with its task's descriptor bounds and QD offset.
@@ -203,13 +210,21 @@ def parse_skills(
     if smerl:
         # SMERL optimises the task reward (weight 1 in Kumar et al. 2020, eq. 3).
         skills_data.setdefault("extrinsic_scale", 1.0)
-    skills = build(DIAYNConfig if base == "diayn" else DADSConfig, skills_data, "skills")
+    if base == "lsd":  # METRA's code with spectral normalisation and no dual variable
+        skills_data.setdefault("lsd", True)
+    skills = build(_CONFIGS[base], skills_data, "skills")
+    if base in ("metra", "lsd") and getattr(skills, "lsd", False) != (base == "lsd"):
+        raise ConfigError(
+            f"skills.lsd: expected {str(base == 'lsd').lower()} for {base} (LSD is experiment.algorithm = "
+            f"'lsd'), got {str(not base == 'lsd').lower()}"
+        )
     archive = check_keys(ArchiveConfig, spec.get("archive", {}), "archive")
     sections: Sections = {"env": env, "agent": agent, "train": train, "skills": skills, "archive": archive}
     if smerl:
         sections["smerl"] = build(SMERLConfig, spec.get("smerl", {}), "smerl")
     k = skills.num_skills
-    if train.num_eval_envs % k:
+    continuous = isinstance(skills, METRAConfig) and not skills.discrete
+    if not continuous and train.num_eval_envs % k:
         raise ConfigError(
             f"train.num_eval_envs: expected a multiple of skills.num_skills={k} (every "
             f"skill is evaluated the same number of times), got {train.num_eval_envs}"
@@ -220,7 +235,7 @@ def parse_skills(
 def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     env_cfg: SkillEnvConfig = sections["env"]
     train_cfg: TrainConfig = sections["train"]
-    skills_cfg: DIAYNConfig | DADSConfig = sections["skills"]
+    skills_cfg: SkillConfig = sections["skills"]
     task = skill_task(env_cfg.task, env_cfg.episode_length, env_cfg.backend)
     archive_defaults = {
         "descriptor": task.episode_descriptor,
@@ -232,16 +247,19 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     base_env: Env = task.env
     archive_cfg.check_size(base_env.descriptor_size, env_cfg.task)
     try:
-        sd = make_skill_discovery(base_env, sections["agent"], skills_cfg, sections.get("smerl"))
+        sd = make_skill_discovery(
+            base_env, sections["agent"], skills_cfg, sections.get("smerl"), train_cfg.num_eval_envs
+        )
     except ValueError as e:
         msg = str(e)
         raise ConfigError(msg if msg.startswith("skills.") else f"agent: {msg}") from e
     trainer = make_trainer(sd.env, sd.agent, train_cfg, sd.storage, placement=ctx.placement)
-    k, num_eval = skills_cfg.num_skills, train_cfg.num_eval_envs
+    k, num_eval = sd.num_skills, train_cfg.num_eval_envs
     key0 = eval_key(ctx.seed)
     labels = tuple(task.descriptor_names)
     title = f"{ctx.algorithm} on {env_cfg.task}"
     metric = _MODEL_METRIC[type(skills_cfg)]
+    positions = archive_cfg.descriptor == "final"  # the state descriptor is a position (x-y)
 
     def evaluate(agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
         return evaluate_skills(sd, agent_state, key, num_eval, archive_cfg.descriptor, archive_cfg.low, archive_cfg.high)
@@ -258,6 +276,8 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         out: dict[str, Any] = dict(metrics)
         out.update(ev)
         out.update(qd)
+        if positions:  # METRA's state coverage: the 1x1 cells the skills' paths visit
+            out["cells_visited"] = cells_visited(ev["trajectories"], ev["mask"])
         # Each episode, for skills.csv (log_row takes them out of the metrics row).
         out["episodes"] = {
             "returns": returns, "lengths": out.pop("lengths"), "descriptors": descriptors,
@@ -345,13 +365,15 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     )
 
 
-_VARIANTS: tuple[tuple[Literal["diayn", "dads"], bool, str], ...] = (
+_VARIANTS: tuple[tuple[Base, bool, str], ...] = (
     ("diayn", False, "DIAYN (Eysenbach et al. 2019): skills that a discriminator tells apart"),
     ("dads", False, "DADS (Sharma et al. 2020): skills with predictable dynamics"),
     ("diayn", True, "SMERL (Kumar et al. 2020) on DIAYN's diversity reward"),
     ("dads", True, "SMERL (Kumar et al. 2020) on DADS's diversity reward"),
+    ("metra", False, "METRA (Park et al. 2024): skills that move far in a temporal-distance latent space"),
+    ("lsd", False, "LSD (Park et al. 2022): METRA's reward with a spectrally normalised, 1-Lipschitz phi"),
 )
-DIAYN, DADS, SMERL_DIAYN, SMERL_DADS = (
+DIAYN, DADS, SMERL_DIAYN, SMERL_DADS, METRA, LSD = (
     Recipe(functools.partial(parse_skills, base=base, smerl=smerl), _build, "train.total_env_steps", description)
     for base, smerl, description in _VARIANTS
 )

@@ -1,0 +1,137 @@
+"""`qdrl run` for METRA and LSD: tiny runs with continuous and discrete skills, the coverage metric,
+specs, bad configs, exact resume, a loaded run's skills; and METRA spreading its skills."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from qdrl import checkpoint, specs
+from qdrl.config import ConfigError, load_toml
+from qdrl.experiment import build_run, run
+from qdrl.runs import load_run
+
+ROOT = Path(__file__).resolve().parents[1]
+SPECS = [*sorted((ROOT / "agents").glob("metra_*.toml")), *sorted((ROOT / "agents").glob("lsd_*.toml")),
+         *sorted((ROOT / "agents" / "metra_baselines").glob("*.toml"))]
+
+
+def tiny_spec(algorithm: str, **skills: Any) -> dict[str, Any]:
+    return {
+        "experiment": {"algorithm": algorithm, "seed": 0},
+        "env": {"task": "point_maze", "episode_length": 20},
+        "agent": {"hidden": [16, 16]},
+        "train": {"total_env_steps": 640, "num_envs": 4, "batch_size": 32, "buffer_size": 1000,
+                  "learning_starts": 80, "grad_steps_per_iter": 2, "eval_every": 320, "num_eval_envs": 8},
+        "skills": {"num_skills": 2, "hidden": [16, 16], "model_input": "descriptor", **skills},
+        "archive": {"grid_shape": [8, 8]},
+        "log": {"progress": False},
+    }
+
+
+@pytest.mark.parametrize(
+    ("algorithm", "skills"),
+    [("metra", {}), ("lsd", {}), ("metra", {"discrete": True, "num_skills": 4})],
+    ids=["metra", "lsd", "metra_discrete"],
+)
+def test_tiny_run_logs_coverage_and_its_representation(tmp_path: Path, algorithm: str, skills: dict[str, Any]) -> None:
+    summary = run(tiny_spec(algorithm, **skills), tmp_path)
+    assert summary["env_steps"] == 640
+    assert 1 <= summary["cells_visited"] <= 4  # the point maze's [-1, 1]^2 spans 4 unit cells
+    assert np.isfinite(summary["representation_loss"]) and np.isfinite(summary["phi_delta_dot_z"])
+    assert ("dual_lambda" in summary) == (algorithm == "metra")
+    episodes = pd.read_csv(tmp_path / "skills.csv")
+    k = 4 if skills else 8  # continuous skills: one direction per evaluation episode
+    assert sorted(set(episodes.skill)) == list(range(k))
+    assert (tmp_path / "plots" / "skills.png").stat().st_size > 1000
+
+
+def test_a_loaded_continuous_run_plays_its_evaluation_directions(tmp_path: Path) -> None:
+    spec = tiny_spec("metra")
+    spec["log"]["plots"] = False
+    run(spec, tmp_path)
+    loaded = load_run(tmp_path)
+    assert loaded.num_skills == 8  # 8 directions evenly spread on the circle
+    last = pd.read_csv(tmp_path / "skills.csv").query("log_point == 1").set_index("episode")
+    for z in (0, 3):
+        episode = loaded.rollout(skill=z)
+        assert episode.return_ == last.loc[z, "return"]
+        action = loaded.policy(skill=z)(episode.observations[:1])
+        np.testing.assert_allclose(action, episode.actions[:1], rtol=1e-6, atol=1e-6)
+
+
+def test_a_metra_run_resumed_after_its_first_checkpoint_matches_an_uninterrupted_one(tmp_path: Path) -> None:
+    spec = tiny_spec("metra")
+    spec["log"]["plots"] = False
+    full = run(spec, tmp_path / "full")
+    out = tmp_path / "stopped"
+    shutil.copytree(tmp_path / "full", out)
+    shutil.rmtree(checkpoint.latest(out / "checkpoints"))  # type: ignore[arg-type]
+    (out / "summary.json").unlink()
+    rows = (out / "metrics.csv").read_text().splitlines()
+    (out / "metrics.csv").write_text("\n".join(rows[:2]) + "\n")
+    episodes = (out / "skills.csv").read_text().splitlines()
+    (out / "skills.csv").write_text("\n".join(episodes[: 1 + 8]) + "\n")
+    resumed = run(spec, out, resume=True)
+    timing = {"wall_s", "compile_s", "startup_s", "run_s", "env_steps_per_s"}
+    keys = sorted(k for k, v in full.items() if isinstance(v, int | float) and k not in timing)
+    assert {"cells_visited", "dual_lambda", "representation_loss"} <= set(keys)
+    for key in keys:
+        assert resumed[key] == full[key], key
+    final = checkpoint.latest(tmp_path / "full" / "checkpoints")
+    assert final is not None
+    with np.load(final / "state.npz") as a, np.load(out / "checkpoints" / final.name / "state.npz") as b:
+        for name in a.files:
+            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+@pytest.mark.parametrize(
+    ("algorithm", "key", "value", "message"),
+    [
+        ("metra", "dual_slack", -1.0, "skills.dual_slack"),
+        ("metra", "lsd", True, "skills.lsd: expected false for metra"),
+        ("metra", "num_skills", 0, "skills.num_skills"),
+        ("lsd", "learning_rate", 0.0, "skills.learning_rate"),
+    ],
+)
+def test_bad_config_names_the_key(algorithm: str, key: str, value: object, message: str) -> None:
+    spec = tiny_spec(algorithm)
+    spec["skills"][key] = value
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+        build_run(spec)
+
+
+def test_every_spec_builds_and_the_suite_names_them() -> None:
+    assert {p.stem for p in SPECS} == {"metra_ant_omni", "metra_ant_omni_cpu", "lsd_ant_omni",
+                                      "lsd_ant_omni_cpu", "diayn_ant_omni", "dads_ant_omni"}
+    for path in SPECS:
+        spec = load_toml(path)
+        run_, _, _ = build_run(spec)
+        assert run_.task == "ant_omni" and spec["env"]["episode_length"] == 200
+    assert specs.resolve("metra_baselines/dads_ant_omni").is_file()
+    # the comparison's runs share SAC's settings and their length
+    cpu = [load_toml(p) for p in SPECS if p.stem.endswith("_cpu") or p.parent.name == "metra_baselines"]
+    assert len({str((s["agent"], s["train"])) for s in cpu}) == 1
+
+
+def test_metra_spreads_its_skills_in_the_point_maze(tmp_path: Path) -> None:
+    """16 directions after 10,000 steps: the skills' final positions spread over the maze (mean
+    distance to their centroid above 0.7; the untrained policy's is 0.33), each step within
+    METRA's constraint."""
+    spec = tiny_spec("metra")
+    spec["env"]["episode_length"] = 50
+    spec["agent"].update(hidden=[64, 64], init_alpha=0.01)
+    spec["skills"].update(hidden=[64, 64], learning_rate=3e-4)
+    spec["train"].update(total_env_steps=10_000, num_envs=8, batch_size=128, buffer_size=10_000,
+                         learning_starts=1000, grad_steps_per_iter=4, eval_every=5000, num_eval_envs=16)
+    spec["log"]["plots"] = False
+    summary = run(spec, tmp_path)
+    final = pd.read_csv(tmp_path / "skills.csv").query("log_point == 1")
+    xy = final[["descriptor_final_x", "descriptor_final_y"]].to_numpy()
+    assert float(np.mean(np.linalg.norm(xy - xy.mean(axis=0), axis=1))) > 0.7
+    assert summary["phi_delta_dot_z"] > 0.0 and summary["phi_step_sq_max"] < 1.5
