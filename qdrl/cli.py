@@ -266,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         help="run a suite file (specs x tasks x seeds under one budget; resumable) or say what of it is done",
     )
     p_suite.add_argument("action", choices=("run", "status"), help="run what is not done, or list each run's status")
-    p_suite.add_argument("file", help="a suite file, or a packaged suite's name (seed_benchmark, seed_benchmark_cpu)")
+    p_suite.add_argument("file", help="a suite file, or a packaged suite's name (qdrl list shows them: seed_benchmark, metra_cpu, qdac_cpu, ...)")
     p_suite.add_argument("--out", default=None, help="output directory (default: runs/<suite name>)")
     p_suite.set_defaults(fn=_cmd_suite)
 

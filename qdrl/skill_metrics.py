@@ -25,9 +25,17 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
+from qdrl.envs.skills import SkillSpace
 from qdrl.types import Array
+
+# The key every run draws its evaluation targets from: one set for every method and seed.
+EVAL_TARGETS_SEED = 0
+# The targets an archive is read against (`archive_skill_metrics`), the same for every method.
+ARCHIVE_TARGETS = 256
 
 NUM_BINS = 21  # QDAC's analysis code
 
@@ -161,3 +169,62 @@ def cells_visited(positions: Array, mask: Array, cell_size: float = 1.0) -> Arra
     ordered = cells[order]
     new = jnp.any(ordered[1:] != ordered[:-1], axis=-1)
     return jnp.where(jnp.any(valid), 1 + jnp.sum(new), 0)
+
+
+def evaluation_targets(space: SkillSpace, n: int, kind: str = "sample") -> np.ndarray:
+    """The (n, D) raw skills every feature-space evaluation plays, the same for every method and
+    seed: "sample" draws them from the space's prior with a fixed key (heading spaces: evenly
+    spaced angles), "grid" lays them on a regular k^D grid (ValueError naming
+    `train.num_eval_envs` unless n = k^D, k >= 2)."""
+    if space.kind == "angular":
+        theta = -np.pi + 2.0 * np.pi * (np.arange(n) + 0.5) / n
+        return np.stack([np.cos(theta), np.sin(theta)], axis=-1).astype(np.float32)
+    d = space.size
+    if kind == "grid":
+        k = round(n ** (1.0 / d))
+        if k < 2 or k**d != n:
+            raise ValueError(
+                f"train.num_eval_envs: expected k^{d} skills (k >= 2) for evaluation.skills = 'grid' "
+                f"over {d} feature dimensions, got {n}"
+            )
+        axes = [np.linspace(lo, hi, k) for lo, hi in zip(space.low, space.high, strict=True)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(n, d).astype(np.float32)
+    with jax.ensure_compile_time_eval():
+        return np.asarray(space.sample(jax.random.PRNGKey(EVAL_TARGETS_SEED), (n,)), np.float32)
+
+
+def nearest_elites(descriptors: Array, fitnesses: Array, targets: Array) -> tuple[Array, Array]:
+    """A repertoire read as a library of skills: for each target (n, D), the distance from it to
+    the nearest elite's descriptor (C, D) and that elite's fitness, the elites being the cells
+    whose fitness is finite (an empty repertoire gives inf and -inf). What a method without
+    target-conditioned skills (SMERL, DOMiNO, QD) offers for a target. Jittable."""
+    descriptors = jnp.asarray(descriptors, jnp.float32)
+    targets = jnp.asarray(targets, jnp.float32)
+    filled = jnp.isfinite(fitnesses)
+    dist = jnp.linalg.norm(targets[:, None, :] - descriptors[None, :, :], axis=-1)
+    dist = jnp.where(filled[None, :], dist, jnp.inf)
+    best = jnp.argmin(dist, axis=1)
+    nearest = jnp.take_along_axis(dist, best[:, None], axis=1)[:, 0]
+    return nearest, jnp.where(jnp.isfinite(nearest), jnp.asarray(fitnesses)[best], -jnp.inf)
+
+
+def default_threshold(space: SkillSpace) -> float:
+    """The distance under which a skill counts as reached when none is given: 5% of the feature
+    space's diagonal (its largest distance)."""
+    return 0.05 * float(np.linalg.norm(np.subtract(space.high, space.low)))
+
+
+def archive_skill_metrics(
+    descriptors: Array, fitnesses: Array, space: SkillSpace, threshold: float | None = None
+) -> dict[str, Array]:
+    """`archive_distance_to_skill` (the mean, over `ARCHIVE_TARGETS` evaluation targets of
+    `space`, of the distance to the nearest elite, `nearest_elites`) and `archive_reached` (the
+    share of targets with an elite within `threshold`, default `default_threshold`): the same
+    figures for every method that fills an archive over a feature space. Jittable."""
+    threshold = default_threshold(space) if threshold is None else threshold
+    targets = jnp.asarray(evaluation_targets(space, ARCHIVE_TARGETS))
+    dist, _ = nearest_elites(descriptors, fitnesses, targets)
+    return {
+        "archive_distance_to_skill": jnp.mean(dist),
+        "archive_reached": jnp.mean((dist <= threshold).astype(jnp.float32)),
+    }

@@ -14,11 +14,11 @@ import pandas as pd
 import pytest
 
 from qdrl import checkpoint
-from qdrl.algorithms.feature_skills import evaluation_skills
 from qdrl.config import ConfigError, load_toml
 from qdrl.envs.skills import SkillSpace
 from qdrl.experiment import build_run, run
 from qdrl.runs import RunError, load_run
+from qdrl.skill_metrics import evaluation_targets
 
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = sorted(p for pattern in ("qdac_*.toml", "uvfa_*.toml") for p in (ROOT / "agents").glob(pattern))
@@ -65,7 +65,7 @@ def test_tiny_run_logs_distance_to_skill_and_fills_the_archive(
     np.testing.assert_allclose(last.distance, dist, rtol=1e-5)
     assert float(np.mean(last.distance)) == pytest.approx(summary["distance_to_skill"], rel=1e-5)
     # the targets are the fixed evaluation skills, the same for every run
-    want = evaluation_skills(SkillSpace((-1.0, -1.0), (1.0, 1.0)), 8, "sample")
+    want = evaluation_targets(SkillSpace((-1.0, -1.0), (1.0, 1.0)), 8, "sample")
     np.testing.assert_allclose(last[["target_x", "target_y"]], want, rtol=1e-6)
     profiles = json.loads((tmp_path / "profiles.json").read_text())
     assert len(profiles["distance_profile"]["share"]) == 21 and len(profiles["performance_profile"]["share"]) == 21
@@ -145,7 +145,7 @@ def test_a_grid_of_evaluation_skills_needs_a_power_of_the_dimension() -> None:
     spec["evaluation"] = {"skills": "grid"}
     spec["train"]["num_eval_envs"] = 9  # 3 x 3 over the 2 features
     run_, _, _ = build_run(spec)
-    grid = evaluation_skills(SkillSpace((-1.0, -1.0), (1.0, 1.0)), 9, "grid")
+    grid = evaluation_targets(SkillSpace((-1.0, -1.0), (1.0, 1.0)), 9, "grid")
     assert sorted(set(grid[:, 0].tolist())) == [-1.0, 0.0, 1.0]
     spec["train"]["num_eval_envs"] = 8
     with pytest.raises(ConfigError, match=r"train\.num_eval_envs: expected k\^2 skills"):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from qdrl import skill_metrics as sm
+from qdrl.envs.skills import SkillSpace
 
 SKILLS = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], np.float32)
 # Each skill's average features: distances 0, 0.5, 0.25 and 1 (exact in float32).
@@ -101,3 +102,37 @@ def test_cells_visited_counts_distinct_unit_cells_of_the_valid_steps() -> None:
     assert int(sm.cells_visited(positions[..., :1], mask)) == 3  # x alone: 0, 1, -1
     with pytest.raises(ValueError, match="positions, mask"):
         sm.cells_visited(positions[0], mask)
+
+
+def test_nearest_elites_reads_a_repertoire_as_a_library_of_skills() -> None:
+    descriptors = jnp.array([[0.0, 0.0], [1.0, 1.0], [0.9, 0.0], [5.0, 5.0]])
+    fitnesses = jnp.array([1.0, 2.0, 3.0, -jnp.inf])  # the last cell is empty
+    targets = jnp.array([[1.0, 0.9], [1.0, 0.0], [4.0, 4.0]])
+    dist, ret = sm.nearest_elites(descriptors, fitnesses, targets)
+    np.testing.assert_allclose(dist, [0.1, 0.1, np.hypot(3.0, 3.0)], rtol=1e-5)
+    np.testing.assert_allclose(ret, [2.0, 3.0, 2.0])  # never the empty cell
+    # the archive metrics: the same reading, over the space's fixed 256 evaluation targets
+    box = SkillSpace((0.0, 0.0), (1.0, 1.0))
+    m = sm.archive_skill_metrics(descriptors, fitnesses, box, threshold=0.2)
+    want, _ = sm.nearest_elites(descriptors, fitnesses, sm.evaluation_targets(box, sm.ARCHIVE_TARGETS))
+    assert float(m["archive_distance_to_skill"]) == pytest.approx(float(np.mean(want)), rel=1e-6)
+    assert float(m["archive_reached"]) == pytest.approx(float(np.mean(np.asarray(want) <= 0.2)))
+    assert float(sm.archive_skill_metrics(descriptors, fitnesses, box)["archive_reached"]) == pytest.approx(
+        float(np.mean(np.asarray(want) <= sm.default_threshold(box)))
+    )
+    empty, ret = sm.nearest_elites(descriptors, jnp.full((4,), -jnp.inf), targets)
+    assert np.all(np.isinf(np.asarray(empty))) and np.all(np.asarray(ret) == -np.inf)
+
+
+def test_evaluation_targets_are_one_fixed_set() -> None:
+    box = SkillSpace((0.0, -5.0), (1.0, 5.0))
+    a, b = sm.evaluation_targets(box, 32), sm.evaluation_targets(box, 32)
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (32, 2) and a[:, 0].min() >= 0.0 and a[:, 1].max() <= 5.0
+    grid = sm.evaluation_targets(box, 9, "grid")
+    assert sorted(set(grid[:, 1].tolist())) == [-5.0, 0.0, 5.0]
+    with pytest.raises(ValueError, match=r"train\.num_eval_envs: expected k\^2"):
+        sm.evaluation_targets(box, 8, "grid")
+    circle = sm.evaluation_targets(SkillSpace((-1.0, -1.0), (1.0, 1.0), "angular"), 8)
+    np.testing.assert_allclose(np.linalg.norm(circle, axis=1), 1.0, rtol=1e-6)
+    assert sm.default_threshold(box) == pytest.approx(0.05 * np.hypot(1.0, 10.0))

@@ -96,7 +96,7 @@ def test_tiny_run_fills_the_passive_archive(
 
 
 def test_every_skill_spec_is_a_known_algorithm_and_task() -> None:
-    assert len(SPECS) == 40
+    assert len(SPECS) == 48
     for path in SPECS:
         spec = load_toml(path)
         algorithm = spec["experiment"]["algorithm"]
@@ -122,6 +122,23 @@ def test_brax_specs_build(path: Path) -> None:
     k = run_.sections["skills"].num_skills
     base = skill_task(spec["env"]["task"], 5, spec["env"].get("backend", "spring")).env.observation_size
     assert state.train.env.obs.shape[-1] == base + k
+
+
+def test_continuous_smerl_and_reverse_smerl_runs(tmp_path: Path) -> None:
+    """The QDAC paper's SMERL baselines: continuous DIAYN skills z in [-1, 1]^2, one per evaluation
+    episode; Reverse SMERL's gate reads the same episode returns."""
+    for algorithm in ("smerl_diayn", "smerl_reverse"):
+        spec = tiny_spec(algorithm)
+        spec["skills"].update(num_skills=2, continuous=True)
+        spec["log"]["plots"] = False
+        summary = run(spec, tmp_path / algorithm)
+        assert np.isfinite(summary["eval_final_discriminator_log_likelihood"]) and 0 <= summary["gate_open"] <= 1
+        episodes = pd.read_csv(tmp_path / algorithm / "skills.csv")
+        assert sorted(set(episodes.skill)) == list(range(8))
+    spec = tiny_spec("smerl_reverse")
+    spec["smerl"]["reverse"] = False
+    with pytest.raises(ConfigError, match=r"smerl\.reverse: expected true"):
+        build_run(spec)
 
 
 @pytest.mark.parametrize(

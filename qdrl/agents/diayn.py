@@ -50,6 +50,10 @@ class DIAYNConfig(SkillModelConfig):
 
     num_skills: PositiveInt = 50
     hidden: Hidden = (300, 300)
+    # Continuous skills: z ~ U[-1, 1]^num_skills (the observation's last num_skills entries) and a
+    # Gaussian discriminator q(z | s') = N(mu(s'), diag sigma(s')^2), the continuous DIAYN the QDAC
+    # paper's SMERL baselines use; False: K one-hot skills and a softmax discriminator.
+    continuous: bool = False
 
 
 class DiscriminatorState(NamedTuple):
@@ -82,6 +86,18 @@ def diayn_reward(logits: Array, skills: Array) -> Array:
     return log_q + math.log(num_skills)
 
 
+def gaussian_diayn_reward(out: Array, skills: Array) -> Array:
+    """Continuous skills: r = log N(z; mu(s'), diag sigma(s')^2) - log p(z), p uniform on [-1, 1]^d
+    (log p(z) = -d log 2); `out` (B, 2d) the discriminator's mean and unbounded log std, the
+    latter mapped into [LOG_STD_MIN, LOG_STD_MAX] as the policy's."""
+    d = skills.shape[-1]
+    mean, raw = jnp.split(out, 2, axis=-1)
+    log_std = nets.LOG_STD_MIN + 0.5 * (nets.LOG_STD_MAX - nets.LOG_STD_MIN) * (jnp.tanh(raw) + 1.0)
+    z = (skills - mean) / jnp.exp(log_std)
+    log_q = -0.5 * jnp.sum(z**2 + 2.0 * log_std + math.log(2.0 * math.pi), axis=-1)
+    return log_q + d * math.log(2.0)
+
+
 def discriminator_loss(logits: Array, skills: Array) -> Array:
     """Cross-entropy -E[log q(z | s')]: maximum likelihood of the skills that were played."""
     return jnp.mean(optax.softmax_cross_entropy_with_integer_labels(logits, skills))
@@ -104,7 +120,8 @@ def make_diayn_module(config: DIAYNConfig, obs_size: int, descriptor_size: int) 
     """
     config.check()
     k = config.num_skills
-    network = discriminator_network(k, config.hidden, config.activation)
+    continuous = config.continuous
+    network = discriminator_network(2 * k if continuous else k, config.hidden, config.activation)
     in_size = descriptor_size if config.model_input == "descriptor" else obs_size
     adam = optax.adam(config.learning_rate)
 
@@ -112,15 +129,27 @@ def make_diayn_module(config: DIAYNConfig, obs_size: int, descriptor_size: int) 
         params = network.init(key, jnp.zeros((1, in_size), jnp.float32))
         return DiscriminatorState(params, adam.init(params))
 
+    def skills_of(obs: Array) -> Array:
+        """The played skills: (B,) indices, or (B, d) continuous skills."""
+        return obs[..., -k:] if continuous else skill_of(obs, k)
+
     def reward_of(logits: Array, skills: Array) -> tuple[Array, Info]:
+        if continuous:
+            r = gaussian_diayn_reward(logits, skills)
+            return r, {"discriminator_log_likelihood": r - k * math.log(2.0)}
         correct = (jnp.argmax(logits, axis=-1) == skills).astype(jnp.float32)
         return diayn_reward(logits, skills), {"discriminator_accuracy": correct}
+
+    def loss_of(logits: Array, skills: Array) -> Array:
+        if continuous:  # maximum likelihood of the skills that were played
+            return -jnp.mean(gaussian_diayn_reward(logits, skills) - k * math.log(2.0))
+        return discriminator_loss(logits, skills)
 
     def reward(
         state: DiscriminatorState, transitions: Transition, key: PRNGKey
     ) -> tuple[Array, Info]:
         del key
-        skills = skill_of(transitions.obs, k)
+        skills = skills_of(transitions.obs)
         return reward_of(network.apply(state.params, model_inputs(transitions, config.model_input, k)), skills)
 
     def reward_and_update(
@@ -128,12 +157,12 @@ def make_diayn_module(config: DIAYNConfig, obs_size: int, descriptor_size: int) 
     ) -> tuple[Array, Info, DiscriminatorState, Metrics]:
         """`reward` and `update` with one forward pass: the logits of the loss are the reward's."""
         del reward_key, update_key
-        skills = skill_of(transitions.obs, k)
+        skills = skills_of(transitions.obs)
         x = model_inputs(transitions, config.model_input, k)
 
         def loss_fn(params: Params) -> tuple[Array, Array]:
             logits = network.apply(params, x)
-            return discriminator_loss(logits, skills), logits
+            return loss_of(logits, skills), logits
 
         (loss, logits), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
         updates, opt_state = adam.update(grads, state.opt_state, state.params)

@@ -131,8 +131,12 @@ def relabel(
     diversity_scale: Array | float,
     extrinsic_scale: Array | float,
     gate: Array | None = None,
+    reverse: bool = False,
 ) -> Array:
-    """r = extrinsic_scale * r_task + diversity_scale * gate * r_div (gate 1 when None)."""
+    """r = extrinsic_scale * r_task + diversity_scale * gate * r_div (gate 1 when None); with
+    `reverse`, r = extrinsic_scale * (1 - gate) * r_task + diversity_scale * r_div."""
+    if gate is not None and reverse:
+        return extrinsic_scale * (1.0 - gate) * task_reward + diversity_scale * diversity_reward
     weight = diversity_scale if gate is None else diversity_scale * gate
     return extrinsic_scale * task_reward + weight * diversity_reward
 
@@ -144,6 +148,7 @@ def with_intrinsic_reward(
     extrinsic_scale: float = 0.0,
     gate: Gate | None = None,
     model_update_every: int = 1,
+    reverse_gate: bool = False,
 ) -> Agent:
     """`agent` trained on batches relabelled with `module`'s intrinsic reward (see the module doc).
 
@@ -156,6 +161,8 @@ def with_intrinsic_reward(
         intrinsic reward per transition (SMERL); batches are then
         `(Transition, episode_return)`.
       model_update_every: the model takes one step every this many updates (1: every one).
+      reverse_gate: the gate weighs the task reward instead, closed where it opens (Reverse
+        SMERL: `relabel(..., reverse=True)`).
     """
     if not is_positive_int(model_update_every):
         raise ValueError(f"model_update_every: expected a positive int, got {model_update_every!r}")
@@ -223,7 +230,7 @@ def with_intrinsic_reward(
         r_div = jax.lax.stop_gradient(r_div)
         hp = state.hparams
         reward = relabel(
-            transitions.reward, r_div, hp["diversity_scale"], hp["extrinsic_scale"], weight
+            transitions.reward, r_div, hp["diversity_scale"], hp["extrinsic_scale"], weight, reverse_gate
         )
         agent_state, metrics = agent.update(
             state.agent, transitions._replace(reward=reward), agent_key
@@ -243,10 +250,11 @@ def with_intrinsic_reward(
 
 
 def with_skill_model(
-    agent: Agent, module: RewardModule, config: SkillModelConfig, gate: Gate | None = None
+    agent: Agent, module: RewardModule, config: SkillModelConfig, gate: Gate | None = None,
+    reverse_gate: bool = False,
 ) -> Agent:
     """`with_intrinsic_reward` with the reward weights and model schedule of a `[skills]` config."""
     return with_intrinsic_reward(
         agent, module, config.diversity_scale, config.extrinsic_scale, gate,
-        config.model_update_every,
+        config.model_update_every, reverse_gate,
     )

@@ -72,22 +72,28 @@ class SkillDiscovery(NamedTuple):
         return self.env.env
 
 
-def is_continuous(skills: SkillConfig) -> bool:
-    """Whether the skills are METRA's unit vectors rather than one-hot codes."""
-    return isinstance(skills, METRAConfig) and not skills.discrete
+def skill_space(skills: SkillConfig) -> SkillSpace | None:
+    """Where continuous skills are drawn: METRA's unit sphere, continuous DIAYN's [-1, 1]^d box;
+    None for one-hot skills."""
+    d = skills.num_skills
+    if isinstance(skills, METRAConfig) and not skills.discrete:
+        return SkillSpace((-1.0,) * d, (1.0,) * d, "unit")
+    if isinstance(skills, DIAYNConfig) and skills.continuous:
+        return SkillSpace((-1.0,) * d, (1.0,) * d, "box")
+    return None
 
 
 def evaluation_codes(skills: SkillConfig, num_eval: int) -> Array:
-    """The codes of the skills evaluations play: the K one-hots, or `num_eval` unit vectors
-    (d = 2: evenly spaced angles; else drawn once from key 0)."""
-    if not is_continuous(skills):
+    """The codes of the skills evaluations play: the K one-hots, or `num_eval` continuous skills
+    (unit vectors with d = 2: evenly spaced angles; else drawn once from key 0)."""
+    space = skill_space(skills)
+    if space is None:
         return jnp.eye(skills.num_skills, dtype=jnp.float32)
-    d = skills.num_skills
-    if d == 2:
+    if space.kind == "unit" and space.size == 2:
         theta = 2.0 * np.pi * np.arange(num_eval) / num_eval
         return jnp.asarray(np.stack([np.cos(theta), np.sin(theta)], axis=-1), jnp.float32)
     with jax.ensure_compile_time_eval():
-        return SkillSpace((-1.0,) * d, (1.0,) * d, "unit").sample(jax.random.PRNGKey(0), (num_eval,))
+        return space.sample(jax.random.PRNGKey(0), (num_eval,))
 
 
 def skill_module(skills: SkillConfig, obs_size: int, descriptor_size: int) -> RewardModule:
@@ -109,9 +115,9 @@ def make_skill_discovery(
     skill model's).
     """
     skill_env: SkillEnv | ContinuousSkillEnv
-    if is_continuous(skills):
-        d = skills.num_skills
-        skill_env = ContinuousSkillEnv(env, SkillSpace((-1.0,) * d, (1.0,) * d, "unit"))
+    space = skill_space(skills)
+    if space is not None:
+        skill_env = ContinuousSkillEnv(env, space)
     else:
         skill_env = SkillEnv(env, skills.num_skills)
     agent = make_sac(sac, skill_env.observation_size, skill_env.action_size)
@@ -119,7 +125,8 @@ def make_skill_discovery(
     gate = None if smerl is None else smerl_gate(smerl.target, smerl.margin)
     storage = off_policy.REPLAY if smerl is None else off_policy.EPISODE_RETURNS
     codes = evaluation_codes(skills, max(num_eval, 1))
-    return SkillDiscovery(skill_env, with_skill_model(agent, module, skills, gate), module, storage, codes)
+    reverse = smerl is not None and smerl.reverse
+    return SkillDiscovery(skill_env, with_skill_model(agent, module, skills, gate, reverse), module, storage, codes)
 
 
 def with_codes(obs: Array, codes: Array) -> Array:

@@ -7,7 +7,8 @@ are already near-optimal (eq. 3 of the paper),
     r = r_task + lambda * 1[R(tau) >= R* - epsilon] * r_div,
 
 where R(tau) is the return of the episode the transition belongs to, R* the
-target return and epsilon the margin. r_div is DIAYN's discriminator reward (the
+target return and epsilon the margin. Reverse SMERL (`reverse`, the QDAC paper's
+baseline) moves the gate to the task reward: r = 1[R(tau) < R* - epsilon] r_task + lambda r_div. r_div is DIAYN's discriminator reward (the
 paper) or DADS's skill-dynamics reward. Episode returns are only known when an
 episode ends, so the training loop stores transitions with their episode's return
 (`off_policy.EPISODE_RETURNS`, a `buffers.TrajectoryBuffer`); transitions of
@@ -43,6 +44,9 @@ class SMERLConfig:
     target: float = 0.0
     # epsilon: episodes with return >= target - margin receive the diversity reward.
     margin: NonNegativeFloat = 0.0
+    # Reverse SMERL (a baseline of the QDAC paper, Grillotti et al. 2024): the diversity reward on
+    # every transition, the task reward only on episodes below target - margin.
+    reverse: bool = False
 
     def check(self) -> None:
         """Raises ValueError naming `smerl.target` or `smerl.margin` when out of range."""

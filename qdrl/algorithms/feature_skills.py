@@ -81,7 +81,7 @@ from qdrl.envs.skills import ContinuousSkillEnv, SkillSpace
 from qdrl.off_policy import STATE_AXES, TrainConfig, make_trainer
 from qdrl.qd.repertoires.passive import feed
 from qdrl.rollout import Episodes, RecordFn, run_episodes
-from qdrl.tasks.brax_features import FEATURE_SPACES, FEATURE_TASKS
+from qdrl.tasks.brax_features import FEATURE_TASKS, feature_space
 from qdrl.types import Array, PRNGKey
 
 __all__ = [
@@ -91,15 +91,12 @@ __all__ = [
     "EvaluationConfig",
     "FeatureTask",
     "UVFAConfig",
-    "evaluation_skills",
     "feature_task",
 ]
 
 POINT_TASK = "point_position"  # a point mass whose feature is its x-y position: tests, demos
 FEATURE_SKILL_TASKS: tuple[str, ...] = (POINT_TASK, *FEATURE_TASKS)
 FeatureTaskName = Annotated[str, OneOf(lambda: FEATURE_SKILL_TASKS)]
-# The key every run draws its evaluation skills from: one set for every method and seed.
-EVAL_SKILLS_SEED = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,29 +156,9 @@ def feature_task(name: str, episode_length: int, backend: str) -> FeatureTask:
         # reward: minus the distance to the goal, at most 2 sqrt(2) in the box
         return FeatureTask(env, SkillSpace((-1.0, -1.0), (1.0, 1.0)), ("x", "y"), -2.0 * math.sqrt(2.0) * episode_length)
     task = FEATURE_TASKS[name](episode_length=episode_length, backend=backend)
-    fs = FEATURE_SPACES[name]
-    space = SkillSpace(tuple(fs.low), tuple(fs.high), "angular" if fs.angular else "box")
+    space = feature_space(name)
+    assert space is not None  # every FEATURE_TASKS name has its space
     return FeatureTask(task.env, space, tuple(task.descriptor_names), task.qd_offset)
-
-
-def evaluation_skills(space: SkillSpace, n: int, kind: str) -> np.ndarray:
-    """The (n, D) raw skills every log point plays (see `EvaluationConfig`); ValueError naming
-    `train.num_eval_envs` when a grid cannot have n points."""
-    if space.kind == "angular":
-        theta = -np.pi + 2.0 * np.pi * (np.arange(n) + 0.5) / n
-        return np.stack([np.cos(theta), np.sin(theta)], axis=-1).astype(np.float32)
-    d = space.size
-    if kind == "grid":
-        k = round(n ** (1.0 / d))
-        if k < 2 or k**d != n:
-            raise ValueError(
-                f"train.num_eval_envs: expected k^{d} skills (k >= 2) for evaluation.skills = 'grid' "
-                f"over {d} feature dimensions, got {n}"
-            )
-        axes = [np.linspace(lo, hi, k) for lo, hi in zip(space.low, space.high, strict=True)]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(n, d).astype(np.float32)
-    with jax.ensure_compile_time_eval():
-        return np.asarray(space.sample(jax.random.PRNGKey(EVAL_SKILLS_SEED), (n,)), np.float32)
 
 
 def parse_feature_skills(spec: Mapping[str, Any], exp: ExperimentConfig, method: Literal["qdac", "uvfa"]) -> Sections:
@@ -231,14 +208,14 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     archive_cfg.check_size(space.size, env_cfg.task)
     num_eval = train_cfg.num_eval_envs
     try:
-        skills = evaluation_skills(space, num_eval, eval_cfg.skills)
+        skills = skill_metrics.evaluation_targets(space, num_eval, eval_cfg.skills)
     except ValueError as e:
         raise ConfigError(str(e)) from e
     skill_env = ContinuousSkillEnv(task.env, space)
     agent = _agent(sections, task, skill_env.observation_size, skill_env.action_size)
     trainer = make_trainer(skill_env, agent, train_cfg, placement=ctx.placement)
     diagonal = float(np.linalg.norm(np.subtract(space.high, space.low)))
-    threshold = eval_cfg.threshold if eval_cfg.threshold is not None else 0.05 * diagonal
+    threshold = eval_cfg.threshold if eval_cfg.threshold is not None else skill_metrics.default_threshold(space)
     return_range = eval_cfg.return_range or archive_cfg.fitness_range
     targets = jnp.asarray(skills)
     codes = space.normalise(targets)
@@ -281,6 +258,7 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         out: dict[str, Any] = dict(metrics)
         out.update(ev)
         out.update(qd)
+        out.update(skill_metrics.archive_skill_metrics(archive.descriptors, archive.fitnesses, space, threshold))
         out["episodes"] = {
             "returns": ep.returns, "lengths": ep.lengths, "descriptors": ep.mean_desc,
             "cells": archive.cell_index(descriptors), "targets": targets, "distances": out.pop("distances"),

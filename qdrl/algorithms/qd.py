@@ -53,6 +53,7 @@ from qdrl.config import (
     build,
     check_table,
 )
+from qdrl.envs.skills import SkillSpace
 from qdrl.lapack_threads import single_threaded_lapack
 from qdrl.pbt import search_space
 from qdrl.placement import check_divisible
@@ -91,7 +92,9 @@ from qdrl.qd.metrics import qd_metrics, range_qd_score
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, write_csv
 from qdrl.qd.repertoires.cvt import cvt_cells
+from qdrl.skill_metrics import archive_skill_metrics
 from qdrl.tasks import TASKS, Task
+from qdrl.tasks.brax_features import feature_space
 from qdrl.types import Array
 
 __all__ = [
@@ -594,9 +597,19 @@ def plot_repertoire(
         )
 
 
-def with_range_score(repertoire: Any, qd_offset: float, fitness_range: tuple[float, float]) -> dict[str, Array]:
-    """`qd_metrics` and the QD score on the scale of `fitness_range` (`range_qd_score`); jittable."""
-    return {**qd_metrics(repertoire, qd_offset), "range_qd_score": range_qd_score(repertoire, fitness_range)}
+def with_range_score(
+    repertoire: Any, qd_offset: float, fitness_range: tuple[float, float] | None = None,
+    space: SkillSpace | None = None,
+) -> dict[str, Array]:
+    """`qd_metrics`, the QD score on the scale of `fitness_range` (`range_qd_score`) when given,
+    and on a feature task (`space`) the repertoire read as a library of skills
+    (`archive_skill_metrics`, as every skill method there logs it); jittable."""
+    out = qd_metrics(repertoire, qd_offset)
+    if fitness_range is not None:
+        out["range_qd_score"] = range_qd_score(repertoire, fitness_range)
+    if space is not None:
+        out.update(archive_skill_metrics(repertoire.descriptors, repertoire.fitnesses, space))
+    return out
 
 
 def reevaluated(
@@ -637,8 +650,11 @@ def _build(
         with jax.ensure_compile_time_eval(), (lapack or contextlib.nullcontext)():
             repertoire = empty(ctx.seed, ctx.centroids)
         options: dict[str, Any] = {} if container is None else {"metrics_fn": container.metrics(task)}
-        if container is None and rep_cfg.fitness_range is not None:
-            options["metrics_fn"] = functools.partial(with_range_score, fitness_range=rep_cfg.fitness_range)
+        space = feature_space(task.name)
+        if container is None and (rep_cfg.fitness_range is not None or space is not None):
+            options["metrics_fn"] = functools.partial(
+                with_range_score, fitness_range=rep_cfg.fitness_range, space=space
+            )
         return MapElites(
             parts.scoring_fn, parts.emitter, repertoire, qd_offset=task.qd_offset, placement=ctx.placement,
             **options,

@@ -1,4 +1,4 @@
-"""Skill-discovery recipes: DIAYN, DADS, and SMERL on either.
+"""Skill-discovery recipes: DIAYN, DADS, SMERL (and Reverse SMERL) on either, METRA and LSD.
 
 A run is SAC on a skill-conditioned environment (`qdrl.agents.skill_discovery`),
 trained by the one off-policy loop with batches relabelled by the intrinsic
@@ -7,7 +7,14 @@ episodes, skill i % K in episode i) through `run_episodes` on the task's own
 environment, offers the episodes' (descriptor, return) to the task's passive archive,
 and logs the same QD metrics as every other algorithm, plus the skill model's
 metrics on the evaluation episodes (discriminator accuracy for DIAYN,
-skill-dynamics log-likelihood for DADS), at every step and at the episodes' last step.
+skill-dynamics log-likelihood for DADS, METRA's step ||phi(s') - phi(s)||^2), at every
+step and at the episodes' last step. Skills are one-hot codes of K skills, or
+continuous (METRA's and LSD's unit vectors; continuous DIAYN's [-1, 1]^d, the QDAC
+paper's SMERL baselines), one per evaluation episode. On position tasks (final x-y) runs
+also log METRA's state coverage (`cells_visited`: the 1x1 cells the evaluation paths
+visit); on QDAC's feature tasks, the archive read as a library of skills for QDAC's
+evaluation targets (`archive_distance_to_skill`, `archive_reached`;
+`qdrl.skill_metrics.archive_skill_metrics`).
 
 Besides the driver's outputs a run writes `skills.csv` (every evaluated episode of every
 log point: its skill, return, length, descriptor and archive cell; `SkillLog`) and
@@ -16,8 +23,8 @@ the archive). A loaded run acts with and replays any skill of its trained agent
 (`Algorithm.agent`, `qdrl.load_run`).
 
 Sections: `[env]` (a task of `SKILL_TASKS`), `[agent]` (SAC), `[train]`, `[skills]`
-(the DIAYN or DADS config), `[smerl]` (SMERL's target and margin), `[archive]`
-(defaults: the task's descriptor bounds and QD offset).
+(the DIAYN, DADS or METRA config), `[smerl]` (SMERL's target, margin and direction),
+`[archive]` (defaults: the task's descriptor bounds and QD offset).
 """
 
 from __future__ import annotations
@@ -46,6 +53,7 @@ from qdrl.agents.skill_discovery import (
     make_skill_discovery,
     skill_episodes,
     skill_policy,
+    skill_space,
 )
 from qdrl.agents.smerl import SMERLConfig
 from qdrl.algorithms.base import (
@@ -76,8 +84,9 @@ from qdrl.off_policy import STATE_AXES, TrainConfig, make_trainer
 from qdrl.qd.repertoires import descriptor_columns
 from qdrl.qd.repertoires.passive import feed
 from qdrl.rollout import Episodes
-from qdrl.skill_metrics import cells_visited
+from qdrl.skill_metrics import archive_skill_metrics, cells_visited
 from qdrl.tasks import TASKS, Task
+from qdrl.tasks.brax_features import FEATURE_TASKS, feature_space
 from qdrl.types import Array, PRNGKey
 
 __all__ = [
@@ -89,6 +98,7 @@ __all__ = [
     "SKILL_TASKS",
     "SMERL_DADS",
     "SMERL_DIAYN",
+    "SMERL_REVERSE",
     "SkillEnvConfig",
     "SkillLog",
     "skill_columns",
@@ -100,12 +110,14 @@ __all__ = [
 # on one scale.
 SKILL_TASKS: tuple[str, ...] = (
     "point_maze", "ant_omni", "ant_trap", "ant_maze", "ant_uni", "halfcheetah_uni", "walker2d_uni",
+    *FEATURE_TASKS,
 )
 SkillTaskName = Annotated[str, OneOf(lambda: SKILL_TASKS)]
 # The skill model's metric on the progress bar: its value at the evaluation episodes' last step.
 _MODEL_METRIC = {
     DIAYNConfig: "discriminator_accuracy", DADSConfig: "dynamics_log_likelihood", METRAConfig: "phi_step_sq",
 }
+_CONTINUOUS_METRIC = {DIAYNConfig: "discriminator_log_likelihood", METRAConfig: "phi_step_sq"}
 _CONFIGS = {"diayn": DIAYNConfig, "dads": DADSConfig, "metra": METRAConfig, "lsd": METRAConfig}
 Base = Literal["diayn", "dads", "metra", "lsd"]
 SKILLS_CSV = "skills.csv"  # every evaluated episode of a run (`SkillLog`)
@@ -196,8 +208,11 @@ class SkillLog:
         tmp.replace(path)
 
 
-def parse_skills(spec: Mapping[str, Any], exp: ExperimentConfig, base: Base, smerl: bool) -> Sections:
-    """The checked sections of a DIAYN / DADS / METRA / LSD (`base`) spec, SMERL on it if `smerl`.
+def parse_skills(
+    spec: Mapping[str, Any], exp: ExperimentConfig, base: Base, smerl: bool, reverse: bool = False
+) -> Sections:
+    """The checked sections of a DIAYN / DADS / METRA / LSD (`base`) spec, SMERL on it if `smerl`
+    (Reverse SMERL if `reverse`).
 
     `[archive]` stays a table of the keys the spec gives (each checked): the build
     completes it with its task's descriptor bounds and QD offset.
@@ -216,15 +231,22 @@ def parse_skills(spec: Mapping[str, Any], exp: ExperimentConfig, base: Base, sme
     if base in ("metra", "lsd") and getattr(skills, "lsd", False) != (base == "lsd"):
         raise ConfigError(
             f"skills.lsd: expected {str(base == 'lsd').lower()} for {base} (LSD is experiment.algorithm = "
-            f"'lsd'), got {str(not base == 'lsd').lower()}"
+            f"'lsd'), got {str(base != 'lsd').lower()}"
         )
     archive = check_keys(ArchiveConfig, spec.get("archive", {}), "archive")
     sections: Sections = {"env": env, "agent": agent, "train": train, "skills": skills, "archive": archive}
     if smerl:
-        sections["smerl"] = build(SMERLConfig, spec.get("smerl", {}), "smerl")
+        smerl_data = dict(check_table(spec.get("smerl", {}), "smerl"))
+        if reverse:
+            smerl_data.setdefault("reverse", True)
+        sections["smerl"] = build(SMERLConfig, smerl_data, "smerl")
+        if sections["smerl"].reverse != reverse:
+            raise ConfigError(
+                f"smerl.reverse: expected {str(reverse).lower()} (Reverse SMERL is experiment.algorithm = "
+                f"'smerl_reverse'), got {str(not reverse).lower()}"
+            )
     k = skills.num_skills
-    continuous = isinstance(skills, METRAConfig) and not skills.discrete
-    if not continuous and train.num_eval_envs % k:
+    if skill_space(skills) is None and train.num_eval_envs % k:
         raise ConfigError(
             f"train.num_eval_envs: expected a multiple of skills.num_skills={k} (every "
             f"skill is evaluated the same number of times), got {train.num_eval_envs}"
@@ -258,8 +280,10 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     key0 = eval_key(ctx.seed)
     labels = tuple(task.descriptor_names)
     title = f"{ctx.algorithm} on {env_cfg.task}"
-    metric = _MODEL_METRIC[type(skills_cfg)]
+    metric = (_CONTINUOUS_METRIC if skill_space(skills_cfg) is not None else _MODEL_METRIC)[type(skills_cfg)]
     positions = archive_cfg.descriptor == "final"  # the state descriptor is a position (x-y)
+    # Feature tasks (QDAC's): the archive read as a library of skills, as for every method there.
+    space = feature_space(env_cfg.task)
 
     def evaluate(agent_state: AgentState, key: PRNGKey) -> dict[str, Array]:
         return evaluate_skills(sd, agent_state, key, num_eval, archive_cfg.descriptor, archive_cfg.low, archive_cfg.high)
@@ -278,6 +302,8 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         out.update(qd)
         if positions:  # METRA's state coverage: the 1x1 cells the skills' paths visit
             out["cells_visited"] = cells_visited(ev["trajectories"], ev["mask"])
+        if space is not None:
+            out.update(archive_skill_metrics(archive.descriptors, archive.fitnesses, space))
         # Each episode, for skills.csv (log_row takes them out of the metrics row).
         out["episodes"] = {
             "returns": returns, "lengths": out.pop("lengths"), "descriptors": descriptors,
@@ -365,15 +391,19 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     )
 
 
-_VARIANTS: tuple[tuple[Base, bool, str], ...] = (
-    ("diayn", False, "DIAYN (Eysenbach et al. 2019): skills that a discriminator tells apart"),
-    ("dads", False, "DADS (Sharma et al. 2020): skills with predictable dynamics"),
-    ("diayn", True, "SMERL (Kumar et al. 2020) on DIAYN's diversity reward"),
-    ("dads", True, "SMERL (Kumar et al. 2020) on DADS's diversity reward"),
-    ("metra", False, "METRA (Park et al. 2024): skills that move far in a temporal-distance latent space"),
-    ("lsd", False, "LSD (Park et al. 2022): METRA's reward with a spectrally normalised, 1-Lipschitz phi"),
+_VARIANTS: tuple[tuple[Base, bool, bool, str], ...] = (
+    ("diayn", False, False, "DIAYN (Eysenbach et al. 2019): skills that a discriminator tells apart"),
+    ("dads", False, False, "DADS (Sharma et al. 2020): skills with predictable dynamics"),
+    ("diayn", True, False, "SMERL (Kumar et al. 2020) on DIAYN's diversity reward"),
+    ("dads", True, False, "SMERL (Kumar et al. 2020) on DADS's diversity reward"),
+    ("metra", False, False, "METRA (Park et al. 2024): skills that move far in a temporal-distance latent space"),
+    ("lsd", False, False, "LSD (Park et al. 2022): METRA's reward with a spectrally normalised, 1-Lipschitz phi"),
+    ("diayn", True, True, "Reverse SMERL (the QDAC paper's baseline): DIAYN's reward always, the task's below target"),
 )
-DIAYN, DADS, SMERL_DIAYN, SMERL_DADS, METRA, LSD = (
-    Recipe(functools.partial(parse_skills, base=base, smerl=smerl), _build, "train.total_env_steps", description)
-    for base, smerl, description in _VARIANTS
+DIAYN, DADS, SMERL_DIAYN, SMERL_DADS, METRA, LSD, SMERL_REVERSE = (
+    Recipe(
+        functools.partial(parse_skills, base=base, smerl=smerl, reverse=reverse), _build, "train.total_env_steps",
+        description,
+    )
+    for base, smerl, reverse, description in _VARIANTS
 )

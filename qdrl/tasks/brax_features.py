@@ -36,6 +36,7 @@ from collections.abc import Callable
 
 from qdrl.config import PositiveInt
 from qdrl.envs.brax import Backend, BraxEnv, state_descriptor_names
+from qdrl.envs.skills import SkillSpace
 from qdrl.tasks.base import Task
 from qdrl.tasks.brax_qd import DEFAULT_BACKEND, REWARD_OFFSETS, brax_policy_task
 from qdrl.tasks.policy import DEFAULT_EVAL_BATCH, Activation
@@ -212,3 +213,12 @@ FEATURE_TASKS: dict[str, Callable[..., Task]] = {
     "humanoid_jump": humanoid_jump,
     "humanoid_angle": humanoid_angle,
 }
+
+
+def feature_space(task: str) -> SkillSpace | None:
+    """The skill space of feature task `task` (where its skills and evaluation targets are
+    drawn), None for a task that is not one of `FEATURE_SPACES`."""
+    fs = FEATURE_SPACES.get(task)
+    if fs is None:
+        return None
+    return SkillSpace(tuple(fs.low), tuple(fs.high), "angular" if fs.angular else "box")

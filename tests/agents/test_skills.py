@@ -28,6 +28,7 @@ from qdrl.agents.diayn import (
     diayn_reward,
     discriminator_loss,
     discriminator_network,
+    gaussian_diayn_reward,
     make_diayn,
     make_diayn_module,
 )
@@ -476,3 +477,43 @@ def test_diayn_tiny_run_discriminates_skills() -> None:
         state, metrics = run(state)
         accuracies.append(float(metrics["discriminator_accuracy"]))
     assert accuracies[-1] > 0.6, accuracies  # chance is 0.25
+
+
+def test_reverse_smerl_gates_the_task_reward_instead() -> None:
+    task, div = jnp.array([1.0, 2.0, 3.0]), jnp.array([10.0, 20.0, 30.0])
+    gate = jnp.array([1.0, 0.0, 1.0])  # episodes at or above target - margin
+    # SMERL: r = c r_task + lambda g r_div; Reverse SMERL: r = c (1 - g) r_task + lambda r_div
+    np.testing.assert_allclose(relabel(task, div, 0.5, 2.0, gate), [2 + 5, 4 + 0, 6 + 15])
+    np.testing.assert_allclose(relabel(task, div, 0.5, 2.0, gate, reverse=True), [0 + 5, 4 + 10, 0 + 15])
+    np.testing.assert_allclose(relabel(task, div, 0.5, 2.0, None, reverse=True), [2 + 5, 4 + 10, 6 + 15])
+
+
+def test_continuous_diayn_reward_is_the_gaussian_log_likelihood_plus_log_of_the_box() -> None:
+    # discriminator output: mean (0.5, -0.5) and a raw log std whose mapped value is log sigma
+    out = jnp.array([[0.5, -0.5, 0.0, 0.0]])
+    log_sigma = -5.0 + 0.5 * 7.0 * (math.tanh(0.0) + 1.0)  # LOG_STD_MIN + ... = -1.5
+    z = jnp.array([[0.2, 0.1]])
+    sigma = math.exp(log_sigma)
+    by_hand = sum(
+        -0.5 * ((zi - mi) / sigma) ** 2 - log_sigma - 0.5 * math.log(2 * math.pi)
+        for zi, mi in ((0.2, 0.5), (0.1, -0.5))
+    ) + 2 * math.log(2.0)
+    assert float(gaussian_diayn_reward(out, z)[0]) == pytest.approx(by_hand, rel=1e-5)
+
+
+def test_continuous_diayn_discriminator_learns_a_skill_from_its_state() -> None:
+    """States that are a fixed function of z: the log-likelihood of z given s' rises by training."""
+    config = DIAYNConfig(num_skills=2, continuous=True, hidden=(32, 32), learning_rate=3e-3)
+    module = make_diayn_module(config, obs_size=3, descriptor_size=2)
+    state = module.init(jax.random.PRNGKey(0))
+    z = jax.random.uniform(jax.random.PRNGKey(1), (256, 2), minval=-1.0, maxval=1.0)
+    obs = jnp.concatenate([jnp.zeros((256, 3)), z], axis=-1)
+    desc = jnp.stack([z[:, 0] + z[:, 1], z[:, 0] - z[:, 1]], axis=-1)
+    zeros = jnp.zeros((256,))
+    tr = Transition(obs, jnp.zeros((256, 1)), zeros, obs, zeros, zeros, desc, desc)
+    step = jax.jit(module.reward_and_update)  # type: ignore[arg-type]
+    first, info, state, _ = step(state, tr, jax.random.PRNGKey(2), jax.random.PRNGKey(3))
+    assert "discriminator_log_likelihood" in info
+    for i in range(300):
+        last, _, state, _ = step(state, tr, jax.random.PRNGKey(i), jax.random.PRNGKey(i))
+    assert float(jnp.mean(last)) > float(jnp.mean(first)) + 2.0
