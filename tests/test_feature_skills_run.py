@@ -156,10 +156,18 @@ def test_a_grid_of_evaluation_skills_needs_a_power_of_the_dimension() -> None:
 def test_every_spec_names_its_algorithm_and_task_and_builds() -> None:
     assert {p.stem for p in SPECS} >= {"qdac_walker2d_feet_contact", "qdac_walker2d_feet_contact_cpu",
                                       "uvfa_walker2d_feet_contact_cpu", "qdac_ant_velocity_cpu"}
-    for path in SPECS:
+    # the baselines of the QDAC paper on its tasks: SMERL, Reverse SMERL, DOMiNO
+    baselines = sorted(
+        p for pattern in ("smerl_diayn_*_feet_contact*.toml", "smerl_diayn_ant_velocity*.toml", "smerl_reverse_*.toml",
+                          "domino_*.toml")
+        for p in (ROOT / "agents").glob(pattern)
+    )
+    assert len(baselines) == 12
+    for path in [*SPECS, *baselines]:
         spec = load_toml(path)
         algorithm = spec["experiment"]["algorithm"]
         assert path.stem.startswith(algorithm), path
+        assert spec["env"]["episode_length"] == 1000, path
         assert path.stem[len(algorithm) + 1 :].removesuffix("_cpu") == spec["env"]["task"], path
         run_, _, _ = build_run(spec)
         assert run_.task == spec["env"]["task"]

@@ -141,6 +141,24 @@ def test_continuous_smerl_and_reverse_smerl_runs(tmp_path: Path) -> None:
         build_run(spec)
 
 
+def test_domino_run_holds_its_multipliers_and_skills(tmp_path: Path) -> None:
+    spec = tiny_spec("domino")
+    spec["skills"] = {"num_skills": 4}
+    spec["domino"] = {"optimality_ratio": 0.8}
+    spec["log"]["plots"] = False
+    summary = run(spec, tmp_path)
+    assert 0.0 < summary["lagrange"] < 1.0 and 0.0 <= summary["constraint_satisfied"] <= 1.0
+    assert np.isfinite(summary["diversity_reward"]) and summary["num_elites"] >= 1
+    assert sorted(set(pd.read_csv(tmp_path / "skills.csv").skill)) == [0, 1, 2, 3]
+    spec["skills"]["hidden"] = [8]  # DOMiNO has no skill model to size
+    with pytest.raises(ConfigError, match=r"skills\.hidden: unknown key"):
+        build_run(spec)
+    del spec["skills"]["hidden"]
+    spec["domino"]["optimality_ratio"] = 1.5
+    with pytest.raises(ConfigError, match=r"domino\.optimality_ratio"):
+        build_run(spec)
+
+
 @pytest.mark.parametrize(
     ("section", "key", "value", "message"),
     [

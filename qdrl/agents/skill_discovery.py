@@ -15,6 +15,7 @@ from a fixed key.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from typing import Literal, NamedTuple
 
@@ -26,16 +27,19 @@ from qdrl import off_policy
 from qdrl.agents.base import Agent, AgentState
 from qdrl.agents.dads import DADSConfig, make_dads_module
 from qdrl.agents.diayn import DIAYNConfig, make_diayn_module
+from qdrl.agents.domino import DOMiNOConfig, make_domino
 from qdrl.agents.intrinsic import RewardModule, with_skill_model
 from qdrl.agents.metra import METRAConfig, make_metra_module
 from qdrl.agents.sac import SACConfig, make_sac
 from qdrl.agents.smerl import SMERLConfig, smerl_gate
+from qdrl.config import PositiveInt, check_fields
 from qdrl.envs.base import Env
 from qdrl.envs.skills import ContinuousSkillEnv, SkillEnv, SkillSpace
 from qdrl.rollout import Episodes, RecordFn, run_episodes
 from qdrl.types import Array, PRNGKey
 
 __all__ = [
+    "DiscreteSkills",
     "SkillConfig",
     "SkillDiscovery",
     "episode_descriptors",
@@ -48,8 +52,20 @@ __all__ = [
 ]
 
 
+@dataclasses.dataclass(frozen=True)
+class DiscreteSkills:
+    """The `[skills]` section of an agent whose skills need no model: K one-hot skills (DOMiNO,
+    whose own settings are the `[domino]` section)."""
+
+    # K, the number of discrete skills.
+    num_skills: PositiveInt = 10
+
+    def check(self) -> None:
+        check_fields(self, "skills")
+
+
 # The skill models' configs (the `[skills]` section).
-SkillConfig = DIAYNConfig | DADSConfig | METRAConfig
+SkillConfig = DIAYNConfig | DADSConfig | METRAConfig | DiscreteSkills
 
 
 class SkillDiscovery(NamedTuple):
@@ -57,7 +73,8 @@ class SkillDiscovery(NamedTuple):
 
     env: SkillEnv | ContinuousSkillEnv  # the environment with the skill appended to its observation
     agent: Agent  # SAC with the intrinsic reward (and SMERL's gate)
-    module: RewardModule  # the skill model: discriminator (DIAYN), skill dynamics (DADS), phi (METRA)
+    # the skill model: discriminator (DIAYN), skill dynamics (DADS), phi (METRA); None (DOMiNO)
+    module: RewardModule | None
     storage: off_policy.Storage  # where the off-policy loop stores transitions
     codes: Array  # (K, code size) the evaluation skills' codes; episode i plays skill i % K
 
@@ -102,18 +119,32 @@ def skill_module(skills: SkillConfig, obs_size: int, descriptor_size: int) -> Re
         return make_diayn_module(skills, obs_size, descriptor_size)
     if isinstance(skills, METRAConfig):
         return make_metra_module(skills, obs_size, descriptor_size)
-    return make_dads_module(skills, obs_size, descriptor_size)
+    if isinstance(skills, DADSConfig):
+        return make_dads_module(skills, obs_size, descriptor_size)
+    raise ValueError(f"skills: {type(skills).__name__} has no skill model")
 
 
 def make_skill_discovery(
-    env: Env, sac: SACConfig, skills: SkillConfig, smerl: SMERLConfig | None = None, num_eval: int = 0
+    env: Env, sac: SACConfig, skills: SkillConfig, smerl: SMERLConfig | None = None, num_eval: int = 0,
+    domino: DOMiNOConfig | None = None,
 ) -> SkillDiscovery:
     """DIAYN, DADS or METRA (by `skills`' type) on `env`; SMERL (Kumar et al. 2020) when `smerl`
-    is given. `num_eval`: the evaluation episodes (continuous skills: one skill each).
+    is given; DOMiNO (Zahavy et al. 2023) on `DiscreteSkills` when `domino` is given, its
+    feature the state descriptor. `num_eval`: the evaluation episodes (continuous skills: one
+    skill each).
 
     Raises ValueError for sizes the networks refuse (messages name `skills.` keys for the
     skill model's).
     """
+    if domino is not None or isinstance(skills, DiscreteSkills):
+        if domino is None or not isinstance(skills, DiscreteSkills):
+            raise ValueError("DOMiNO: expected DiscreteSkills with a DOMiNOConfig")
+        k = skills.num_skills
+        one_hot_env = SkillEnv(env, k)
+        agent = make_domino(
+            sac, domino, k, one_hot_env.observation_size, one_hot_env.action_size, env.descriptor_size
+        )
+        return SkillDiscovery(one_hot_env, agent, None, off_policy.REPLAY, evaluation_codes(skills, k))
     skill_env: SkillEnv | ContinuousSkillEnv
     space = skill_space(skills)
     if space is not None:
@@ -207,7 +238,7 @@ def evaluate_skills(
     steps = tr.obs.shape[0]
     tr = tr._replace(obs=with_codes(tr.obs, codes), next_obs=with_codes(tr.next_obs, codes))
     flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), tr)
-    _, info = sd.module.reward(agent_state.aux, flat, model_key)
+    info = {} if sd.module is None else sd.module.reward(agent_state.aux, flat, model_key)[1]
     mask = ep.mask
     last = jax.nn.one_hot(ep.lengths - 1, steps, axis=0) * mask  # (T, B) the last step
     out: dict[str, Array] = {

@@ -44,6 +44,7 @@ ALGORITHMS: dict[str, Recipe] = {
     "smerl_diayn": skills.SMERL_DIAYN,
     "smerl_dads": skills.SMERL_DADS,
     "smerl_reverse": skills.SMERL_REVERSE,
+    "domino": skills.DOMINO,
     "metra": skills.METRA,
     "lsd": skills.LSD,
     # skills as targets in a feature space, measured by distance to skill

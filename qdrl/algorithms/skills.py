@@ -1,4 +1,4 @@
-"""Skill-discovery recipes: DIAYN, DADS, SMERL (and Reverse SMERL) on either, METRA and LSD.
+"""Skill-discovery recipes: DIAYN, DADS, SMERL (and Reverse SMERL) on either, METRA, LSD, DOMiNO.
 
 A run is SAC on a skill-conditioned environment (`qdrl.agents.skill_discovery`),
 trained by the one off-policy loop with batches relabelled by the intrinsic
@@ -23,7 +23,8 @@ the archive). A loaded run acts with and replays any skill of its trained agent
 (`Algorithm.agent`, `qdrl.load_run`).
 
 Sections: `[env]` (a task of `SKILL_TASKS`), `[agent]` (SAC), `[train]`, `[skills]`
-(the DIAYN, DADS or METRA config), `[smerl]` (SMERL's target, margin and direction),
+(the DIAYN, DADS or METRA config; DOMiNO's: its number of skills), `[domino]` (DOMiNO's
+constraint and diversity reward), `[smerl]` (SMERL's target, margin and direction),
 `[archive]` (defaults: the task's descriptor bounds and QD offset).
 """
 
@@ -44,9 +45,11 @@ from qdrl import plotting
 from qdrl.agents.base import AgentState
 from qdrl.agents.dads import DADSConfig
 from qdrl.agents.diayn import DIAYNConfig
+from qdrl.agents.domino import DOMiNOConfig
 from qdrl.agents.metra import METRAConfig
 from qdrl.agents.sac import SACConfig
 from qdrl.agents.skill_discovery import (
+    DiscreteSkills,
     SkillConfig,
     episode_descriptors,
     evaluate_skills,
@@ -92,6 +95,7 @@ from qdrl.types import Array, PRNGKey
 __all__ = [
     "DADS",
     "DIAYN",
+    "DOMINO",
     "LSD",
     "METRA",
     "SKILLS_CSV",
@@ -118,8 +122,10 @@ _MODEL_METRIC = {
     DIAYNConfig: "discriminator_accuracy", DADSConfig: "dynamics_log_likelihood", METRAConfig: "phi_step_sq",
 }
 _CONTINUOUS_METRIC = {DIAYNConfig: "discriminator_log_likelihood", METRAConfig: "phi_step_sq"}
-_CONFIGS = {"diayn": DIAYNConfig, "dads": DADSConfig, "metra": METRAConfig, "lsd": METRAConfig}
-Base = Literal["diayn", "dads", "metra", "lsd"]
+_CONFIGS = {
+    "diayn": DIAYNConfig, "dads": DADSConfig, "metra": METRAConfig, "lsd": METRAConfig, "domino": DiscreteSkills,
+}
+Base = Literal["diayn", "dads", "metra", "lsd", "domino"]
 SKILLS_CSV = "skills.csv"  # every evaluated episode of a run (`SkillLog`)
 
 
@@ -235,6 +241,8 @@ def parse_skills(
         )
     archive = check_keys(ArchiveConfig, spec.get("archive", {}), "archive")
     sections: Sections = {"env": env, "agent": agent, "train": train, "skills": skills, "archive": archive}
+    if base == "domino":
+        sections["domino"] = build(DOMiNOConfig, spec.get("domino", {}), "domino")
     if smerl:
         smerl_data = dict(check_table(spec.get("smerl", {}), "smerl"))
         if reverse:
@@ -270,7 +278,8 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     archive_cfg.check_size(base_env.descriptor_size, env_cfg.task)
     try:
         sd = make_skill_discovery(
-            base_env, sections["agent"], skills_cfg, sections.get("smerl"), train_cfg.num_eval_envs
+            base_env, sections["agent"], skills_cfg, sections.get("smerl"), train_cfg.num_eval_envs,
+            sections.get("domino"),
         )
     except ValueError as e:
         msg = str(e)
@@ -280,7 +289,7 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
     key0 = eval_key(ctx.seed)
     labels = tuple(task.descriptor_names)
     title = f"{ctx.algorithm} on {env_cfg.task}"
-    metric = (_CONTINUOUS_METRIC if skill_space(skills_cfg) is not None else _MODEL_METRIC)[type(skills_cfg)]
+    metric = (_CONTINUOUS_METRIC if skill_space(skills_cfg) is not None else _MODEL_METRIC).get(type(skills_cfg))
     positions = archive_cfg.descriptor == "final"  # the state descriptor is a position (x-y)
     # Feature tasks (QDAC's): the archive read as a library of skills, as for every method there.
     space = feature_space(env_cfg.task)
@@ -376,7 +385,8 @@ def _build(sections: Sections, ctx: BuildContext) -> Algorithm:
         sections={**sections, "archive": archive_cfg},
         num_chunks=train_cfg.num_chunks,
         progress=Progress(
-            ("eval_return", "coverage", f"eval_final_{metric}"), "env_steps", train_cfg.num_chunks * train_cfg.eval_every
+            ("eval_return", "coverage", *([f"eval_final_{metric}"] if metric else [])), "env_steps",
+            train_cfg.num_chunks * train_cfg.eval_every,
         ),
         init=init,
         chunk=chunk,
@@ -399,8 +409,9 @@ _VARIANTS: tuple[tuple[Base, bool, bool, str], ...] = (
     ("metra", False, False, "METRA (Park et al. 2024): skills that move far in a temporal-distance latent space"),
     ("lsd", False, False, "LSD (Park et al. 2022): METRA's reward with a spectrally normalised, 1-Lipschitz phi"),
     ("diayn", True, True, "Reverse SMERL (the QDAC paper's baseline): DIAYN's reward always, the task's below target"),
+    ("domino", False, False, "DOMiNO (Zahavy et al. 2023): diverse skills held near the optimal one's return"),
 )
-DIAYN, DADS, SMERL_DIAYN, SMERL_DADS, METRA, LSD, SMERL_REVERSE = (
+DIAYN, DADS, SMERL_DIAYN, SMERL_DADS, METRA, LSD, SMERL_REVERSE, DOMINO = (
     Recipe(
         functools.partial(parse_skills, base=base, smerl=smerl, reverse=reverse), _build, "train.total_env_steps",
         description,
