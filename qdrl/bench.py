@@ -24,7 +24,7 @@ import brax
 import jax
 import jax.numpy as jnp
 
-from qdrl import bench_scaling, compiling, envs
+from qdrl import bench_scaling, bench_skill_methods, compiling, envs
 from qdrl import hlo_profile as profiler
 from qdrl.agents import AGENTS, SACConfig
 from qdrl.agents.dads import DADSConfig
@@ -77,6 +77,7 @@ def time_trainer(
     seed: int = 0,
     build: Callable[[Any, Any], Any] | None = None,
     population: int = 1,
+    env: Any = None,
 ) -> dict[str, Any]:
     """Compile and time the off-policy loop of `algorithm` on `env_name`.
 
@@ -86,9 +87,12 @@ def time_trainer(
 
     `build(env, train_config) -> Trainer` replaces the default trainer of the
     `AGENTS` entry `algorithm` (e.g. a skill-discovery agent; `algorithm` then only labels).
+    `env`, when given, is the environment (e.g. a task's, with its state descriptor); `env_name`
+    then only labels.
     """
 
-    env = envs.make(env_name, backend=backend, episode_length=episode_length)
+    if env is None:
+        env = envs.make(env_name, backend=backend, episode_length=episode_length)
     chunk_steps = iters_per_chunk * num_envs
     cfg = TrainConfig(
         total_env_steps=chunk_steps * (repeats + 1),
@@ -482,6 +486,7 @@ def run_bench(
     """Run benchmark `name`; returns (and optionally writes) its JSON record."""
 
     BENCHES.setdefault("scaling", bench_scaling.bench_scaling)
+    BENCHES.setdefault("skill_methods", bench_skill_methods.bench_skill_methods)
     if name not in BENCHES:
         raise ValueError(f"unknown benchmark {name!r}; expected one of {sorted(BENCHES)}")
     record = {

@@ -186,3 +186,20 @@ def test_qdac_learns_to_reach_its_targets_on_the_point_mass(tmp_path: Path) -> N
     rows = pd.read_csv(tmp_path / "metrics.csv")
     assert rows.distance_to_skill.iloc[0] > 0.6
     assert rows.distance_to_skill.iloc[-1] < 0.35, rows.distance_to_skill.tolist()
+
+
+def test_the_throughput_bench_builds_every_method_beside_sac() -> None:
+    """`qdrl bench skill_methods` (timed as a benchmark, not here): each method's trainer builds on
+    its paper's environment, with the same loop settings as SAC's."""
+    from qdrl.bench_skill_methods import FEATURE_METHODS, POSITION_METHODS, method_trainer_builder
+    from qdrl.off_policy import TrainConfig
+    from qdrl.tasks import make_task
+
+    config = TrainConfig(total_env_steps=64, num_envs=4, batch_size=8, buffer_size=64, eval_every=32)
+    for task, methods in (("walker2d_feet_contact", FEATURE_METHODS), ("ant_omni", POSITION_METHODS)):
+        env = make_task(task, episode_length=5).env
+        for method in methods:
+            state = jax.eval_shape(method_trainer_builder(method, task)(env, config).init, jax.random.PRNGKey(0))
+            assert state.env.obs.shape[0] == 4, method
+    with pytest.raises(ValueError, match="unknown skill method 'dqn'"):
+        method_trainer_builder("dqn", "ant_omni")(env, config)
