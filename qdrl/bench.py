@@ -8,6 +8,7 @@ the MAP-Elites benchmarks record come from `qdrl.hlo_profile`.
 
 from __future__ import annotations
 
+import functools
 import json
 import platform
 import resource
@@ -486,7 +487,9 @@ def run_bench(
     """Run benchmark `name`; returns (and optionally writes) its JSON record."""
 
     BENCHES.setdefault("scaling", bench_scaling.bench_scaling)
-    BENCHES.setdefault("skill_methods", bench_skill_methods.bench_skill_methods)
+    BENCHES.setdefault(
+        "skill_methods", functools.partial(bench_skill_methods.bench_skill_methods, time_trainer=time_trainer)
+    )
     if name not in BENCHES:
         raise ValueError(f"unknown benchmark {name!r}; expected one of {sorted(BENCHES)}")
     record = {

@@ -69,10 +69,12 @@ def method_trainer_builder(algorithm: str, task: str) -> Callable[[Any, TrainCon
     return build
 
 
-def bench_skill_methods(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
+def bench_skill_methods(
+    quick: bool, seed: int = 0, config: str | None = None, *, time_trainer: Callable[..., dict[str, Any]]
+) -> list[dict[str, Any]]:
     """Each method's env steps per second next to SAC's on its paper's environment (module doc);
-    `config` times one method beside SAC."""
-    from qdrl.bench import time_trainer  # bench imports this module
+    `config` times one method beside SAC. `time_trainer` is `qdrl.bench.time_trainer` (bench
+    registers this benchmark with it)."""
 
     cases = [("walker2d_feet_contact", FEATURE_METHODS), ("ant_omni", POSITION_METHODS)]
     if config is not None:
