@@ -203,3 +203,26 @@ def test_the_throughput_bench_builds_every_method_beside_sac() -> None:
             assert state.env.obs.shape[0] == 4, method
     with pytest.raises(ValueError, match="unknown skill method 'dqn'"):
         method_trainer_builder("dqn", "ant_omni")(env, config)
+
+
+def test_qd_runs_on_a_feature_task_read_their_repertoire_as_skills() -> None:
+    """DCRL-ME, QD-PG (and any QD run) on a feature task log the archive figures every skill
+    method there logs: the repertoire's nearest elite to each of the 256 fixed targets."""
+    import jax.numpy as jnp
+
+    from qdrl import skill_metrics
+    from qdrl.algorithms.qd import with_range_score
+    from qdrl.qd.repertoires import grid_repertoire
+    from qdrl.tasks.brax_features import feature_space
+
+    space = feature_space("walker2d_feet_contact")
+    assert space is not None and space.low == (0.0, 0.0) and space.high == (1.0, 1.0)
+    rep = grid_repertoire(jnp.zeros((3,)), (4, 4), (0.0, 0.0), (1.0, 1.0))
+    rep = rep.add(jnp.zeros((2, 3)), jnp.array([[0.1, 0.1], [0.9, 0.6]]), jnp.array([5.0, 7.0]))[0]
+    metrics = with_range_score(rep, 0.0, space=space)
+    want = skill_metrics.archive_skill_metrics(rep.descriptors, rep.fitnesses, space)
+    assert float(metrics["archive_distance_to_skill"]) == float(want["archive_distance_to_skill"]) > 0.0
+    assert "range_qd_score" not in metrics and float(metrics["qd_score"]) == 12.0
+    for name in ("dcrl_me_walker2d_feet_contact", "qdpg_walker2d_feet_contact"):
+        run_, _, _ = build_run(load_toml(ROOT / "agents" / f"{name}.toml"))
+        assert run_.task == "walker2d_feet_contact"
