@@ -1,0 +1,72 @@
+"""The final figures of a skill-method suite's runs (`qdrl suite run qdac_cpu` / `metra_cpu`), as JSON.
+
+    python benchmarks/skill_suites_summary.py runs/qdac_cpu --out benchmarks/results/qdac_cpu.json
+    python benchmarks/skill_suites_summary.py runs/metra_cpu --out benchmarks/results/metra_cpu.json
+
+For every run directory `<task>/<algorithm>/seed_<n>/` with a metrics.csv: its last row's
+distance to skill (direct and through the archive), share of targets reached, evaluation
+return, METRA's cells visited, the passive archive's QD score and coverage, environment steps
+and wall time, and the run's profiles.json when it wrote one; then per task and algorithm the
+mean over seeds. Runs that have not finished are reported with `finished: false`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import statistics
+from pathlib import Path
+from typing import Any
+
+KEYS = (
+    "env_steps", "wall_s", "eval_return", "distance_to_skill", "reached", "archive_distance_to_skill",
+    "archive_reached", "cells_visited", "qd_score", "coverage", "num_elites", "lagrange",
+)
+
+
+def run_figures(run: Path) -> dict[str, Any]:
+    """The last logged value of each of `KEYS` a run has, and whether it finished."""
+    with (run / "metrics.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    last = rows[-1] if rows else {}
+    out: dict[str, Any] = {k: float(last[k]) for k in KEYS if last.get(k) not in (None, "")}
+    out["finished"] = (run / "summary.json").is_file()
+    out["log_points"] = len(rows)
+    if (run / "profiles.json").is_file():
+        out["profiles"] = json.loads((run / "profiles.json").read_text())
+    return out
+
+
+def summarise(root: Path) -> dict[str, Any]:
+    """Every run under `root` (`<task>/<algorithm>/seed_<n>`) and the mean per task and algorithm."""
+    runs: dict[str, dict[str, dict[str, Any]]] = {}
+    for metrics in sorted(root.glob("*/*/seed_*/metrics.csv")):
+        run = metrics.parent
+        task, algorithm, seed = run.parent.parent.name, run.parent.name, run.name
+        runs.setdefault(task, {}).setdefault(algorithm, {})[seed] = run_figures(run)
+    means: dict[str, dict[str, dict[str, float]]] = {}
+    for task, by_algorithm in runs.items():
+        for algorithm, by_seed in by_algorithm.items():
+            keys = {k for fig in by_seed.values() for k in fig if k in KEYS}
+            means.setdefault(task, {})[algorithm] = {
+                k: statistics.fmean(fig[k] for fig in by_seed.values() if k in fig) for k in sorted(keys)
+            } | {"seeds": len(by_seed)}
+    return {"suite": root.name, "runs": runs, "mean_over_seeds": means}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("root", type=Path, help="the suite's output directory")
+    parser.add_argument("--out", type=Path, help="write the JSON here too")
+    args = parser.parse_args()
+    record = summarise(args.root)
+    text = json.dumps(record, indent=2)
+    print(json.dumps(record["mean_over_seeds"], indent=2))
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
