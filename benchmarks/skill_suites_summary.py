@@ -2,8 +2,11 @@
 
     python benchmarks/skill_suites_summary.py runs/qdac_cpu --out benchmarks/results/qdac_cpu.json
     python benchmarks/skill_suites_summary.py runs/metra_cpu --out benchmarks/results/metra_cpu.json
+    python benchmarks/skill_suites_summary.py runs/qdac_cpu --at-env-steps 200000   # every run at one length
 
-For every run directory `<task>/<algorithm>/seed_<n>/` with a metrics.csv: its last row's
+For every run directory `<task>/<algorithm>/seed_<n>/` with a metrics.csv: its last row's (or,
+with `--at-env-steps N`, its row at N environment steps, so that runs of several lengths
+compare at one)
 distance to skill (direct and through the archive), share of targets reached, evaluation
 return, METRA's cells visited, the passive archive's QD score and coverage, environment steps
 and wall time, and the run's profiles.json when it wrote one; then per task and algorithm the
@@ -25,26 +28,29 @@ KEYS = (
 )
 
 
-def run_figures(run: Path) -> dict[str, Any]:
-    """The last logged value of each of `KEYS` a run has, and whether it finished."""
+def run_figures(run: Path, at_env_steps: int | None = None) -> dict[str, Any]:
+    """The last logged value (or the value at `at_env_steps`) of each of `KEYS` a run has, and
+    whether it finished."""
     with (run / "metrics.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
+    if at_env_steps is not None:
+        rows = [r for r in rows if int(float(r["env_steps"])) <= at_env_steps]
     last = rows[-1] if rows else {}
     out: dict[str, Any] = {k: float(last[k]) for k in KEYS if last.get(k) not in (None, "")}
     out["finished"] = (run / "summary.json").is_file()
     out["log_points"] = len(rows)
-    if (run / "profiles.json").is_file():
+    if (run / "profiles.json").is_file() and at_env_steps is None:
         out["profiles"] = json.loads((run / "profiles.json").read_text())
     return out
 
 
-def summarise(root: Path) -> dict[str, Any]:
+def summarise(root: Path, at_env_steps: int | None = None) -> dict[str, Any]:
     """Every run under `root` (`<task>/<algorithm>/seed_<n>`) and the mean per task and algorithm."""
     runs: dict[str, dict[str, dict[str, Any]]] = {}
     for metrics in sorted(root.glob("*/*/seed_*/metrics.csv")):
         run = metrics.parent
         task, algorithm, seed = run.parent.parent.name, run.parent.name, run.name
-        runs.setdefault(task, {}).setdefault(algorithm, {})[seed] = run_figures(run)
+        runs.setdefault(task, {}).setdefault(algorithm, {})[seed] = run_figures(run, at_env_steps)
     means: dict[str, dict[str, dict[str, float]]] = {}
     for task, by_algorithm in runs.items():
         for algorithm, by_seed in by_algorithm.items():
@@ -52,15 +58,16 @@ def summarise(root: Path) -> dict[str, Any]:
             means.setdefault(task, {})[algorithm] = {
                 k: statistics.fmean(fig[k] for fig in by_seed.values() if k in fig) for k in sorted(keys)
             } | {"seeds": len(by_seed)}
-    return {"suite": root.name, "runs": runs, "mean_over_seeds": means}
+    return {"suite": root.name, "at_env_steps": at_env_steps, "runs": runs, "mean_over_seeds": means}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("root", type=Path, help="the suite's output directory")
     parser.add_argument("--out", type=Path, help="write the JSON here too")
+    parser.add_argument("--at-env-steps", type=int, help="read every run at this many env steps")
     args = parser.parse_args()
-    record = summarise(args.root)
+    record = summarise(args.root, args.at_env_steps)
     text = json.dumps(record, indent=2)
     print(json.dumps(record["mean_over_seeds"], indent=2))
     if args.out is not None:

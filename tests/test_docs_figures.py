@@ -34,6 +34,7 @@ RUN_TIME_OUTPUTS = {
     "plots/repertoire.png",  # qdrl run of a QD algorithm: the repertoire's heatmap
     "plots/population.png",  # qdrl run of PBT: the population's members
     "plots/skills.png",  # qdrl run of a skill-discovery agent: each skill's trajectories
+    "plots/profiles.png",  # qdrl run of QDAC or UVFA: distance and performance profiles
     "plots/replay_skills.png",  # qdrl render RUN: every skill's path
     "plots/replay_skill3.png",  # qdrl render RUN --skill 3
     "plots/replay_agent.png",  # qdrl render RUN of an RL agent: its first evaluation episode
