@@ -1,16 +1,16 @@
 """Skill discovery one call away: SAC on a skill-conditioned environment with DIAYN's, DADS's or
-METRA's (LSD's) intrinsic reward, SMERL's gate on any.
+METRA's (LSD's) intrinsic reward, SMERL's gate on any; DOMiNO's agent on one-hot skills.
 
     sd = make_skill_discovery(env, SACConfig(), DIAYNConfig(num_skills=5), SMERLConfig(target=...))
     trainer = make_trainer(sd.env, sd.agent, TrainConfig(...), sd.storage)
 
 The agent acts on the environment's observation followed by a skill code: a one-hot
-(`qdrl.envs.skills.SkillEnv`), or METRA's continuous unit vector (`ContinuousSkillEnv`);
-its batches are relabelled by the skill model's reward (`qdrl.agents.intrinsic`); SMERL's
-batches carry each transition's episode return (`qdrl.off_policy.EPISODE_RETURNS`).
-Evaluations play a fixed set of skills, `sd.codes`: the K one-hots, or (continuous skills)
-one direction per evaluation episode, spread evenly over the circle (d = 2) or drawn once
-from a fixed key.
+(`qdrl.envs.skills.SkillEnv`), or a continuous skill (`ContinuousSkillEnv`: METRA's unit
+vectors, continuous DIAYN's [-1, 1]^d); its batches are relabelled by the skill model's reward
+(`qdrl.agents.intrinsic`); SMERL's batches carry each transition's episode return
+(`qdrl.off_policy.EPISODE_RETURNS`). Evaluations play a fixed set of skills, `sd.codes`: the
+K one-hots, or (continuous skills) one skill per evaluation episode: unit vectors evenly
+spread over the circle (d = 2), else drawn once from a fixed key.
 """
 
 from __future__ import annotations
