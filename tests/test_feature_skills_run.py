@@ -226,3 +226,23 @@ def test_qd_runs_on_a_feature_task_read_their_repertoire_as_skills() -> None:
     for name in ("dcrl_me_walker2d_feet_contact", "qdpg_walker2d_feet_contact"):
         run_, _, _ = build_run(load_toml(ROOT / "agents" / f"{name}.toml"))
         assert run_.task == "walker2d_feet_contact"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name",
+    [p.stem for p in SPECS if p.stem.endswith("_cpu")]
+    + ["smerl_diayn_walker2d_feet_contact_cpu", "smerl_reverse_ant_velocity_cpu", "domino_walker2d_feet_contact_cpu"],
+)
+def test_every_cpu_spec_runs_a_tiny_version(tmp_path: Path, name: str) -> None:
+    """Each 2-core spec of the QDAC comparison, shrunk (20-step episodes, 2 log points), runs on
+    its brax task and logs the figures the comparison reads."""
+    spec = load_toml(ROOT / "agents" / f"{name}.toml")
+    spec["env"]["episode_length"] = 20
+    spec["train"].update(total_env_steps=320, num_envs=4, batch_size=16, buffer_size=1000, learning_starts=80,
+                         grad_steps_per_iter=1, eval_every=160, num_eval_envs=10 if "domino" in name else 8)
+    spec["archive"].update(num_centroids=32, cvt_samples=2000)
+    spec["log"] = {"progress": False, "plots": False}
+    summary = run(spec, tmp_path)
+    assert summary["env_steps"] == 320
+    assert np.isfinite(summary["archive_distance_to_skill"]) and 0.0 <= summary["archive_reached"] <= 1.0
