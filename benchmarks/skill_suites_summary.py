@@ -10,7 +10,10 @@ compare at one)
 distance to skill (direct and through the archive), share of targets reached, evaluation
 return, METRA's cells visited, the passive archive's QD score and coverage, environment steps
 and wall time, and the run's profiles.json when it wrote one; then per task and algorithm the
-mean over seeds. Runs that have not finished are reported with `finished: false`.
+mean over seeds. Runs that have not finished are reported with `finished: false`. A run of a
+feature task that did not log `archive_distance_to_skill` (an older version of qdrl) gets it
+from its passive archive rebuilt from skills.csv (its evaluated episodes, in order, into the
+same cells): the figures its run would have logged.
 """
 
 from __future__ import annotations
@@ -19,8 +22,18 @@ import argparse
 import csv
 import json
 import statistics
+import tomllib
 from pathlib import Path
 from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from qdrl.algorithms.rl import ArchiveConfig
+from qdrl.config import build
+from qdrl.qd.repertoires.passive import feed
+from qdrl.skill_metrics import archive_skill_metrics
+from qdrl.tasks.brax_features import feature_space
 
 KEYS = (
     "env_steps", "wall_s", "eval_return", "distance_to_skill", "reached", "archive_distance_to_skill",
@@ -37,11 +50,34 @@ def run_figures(run: Path, at_env_steps: int | None = None) -> dict[str, Any]:
         rows = [r for r in rows if int(float(r["env_steps"])) <= at_env_steps]
     last = rows[-1] if rows else {}
     out: dict[str, Any] = {k: float(last[k]) for k in KEYS if last.get(k) not in (None, "")}
+    if "archive_distance_to_skill" not in out and rows and (run / "skills.csv").is_file():
+        out.update(rebuilt_archive_metrics(run, int(float(last["env_steps"]))))
     out["finished"] = (run / "summary.json").is_file()
     out["log_points"] = len(rows)
     if (run / "profiles.json").is_file() and at_env_steps is None:
         out["profiles"] = json.loads((run / "profiles.json").read_text())
     return out
+
+
+def rebuilt_archive_metrics(run: Path, env_steps: int) -> dict[str, float]:
+    """`archive_skill_metrics` of a run's passive archive after `env_steps`, rebuilt from the
+    episodes skills.csv holds ({} where the run's task has no feature space)."""
+    config = tomllib.loads((run / "config.toml").read_text())
+    space = feature_space(config["env"]["task"])
+    if space is None:
+        return {}
+    archive_cfg = build(ArchiveConfig, config["archive"], "archive")
+    archive = archive_cfg.empty(int(config["experiment"]["seed"]))
+    with (run / "skills.csv").open(newline="") as f:
+        episodes = [r for r in csv.DictReader(f) if int(r["env_steps"]) <= env_steps]
+    columns = [c for c in episodes[0] if c.startswith("descriptor_")]
+    for point in sorted({int(r["log_point"]) for r in episodes}):
+        batch = [r for r in episodes if int(r["log_point"]) == point]
+        desc = np.clip([[float(r[c]) for c in columns] for r in batch], archive_cfg.low, archive_cfg.high)
+        archive, _ = feed(archive, jnp.asarray(desc, jnp.float32), jnp.asarray([float(r["return"]) for r in batch]),
+                          archive_cfg.qd_offset)
+    metrics = archive_skill_metrics(archive.descriptors, archive.fitnesses, space)
+    return {k: float(v) for k, v in metrics.items()} | {"archive_rebuilt_from_skills_csv": 1.0}
 
 
 def summarise(root: Path, at_env_steps: int | None = None) -> dict[str, Any]:
