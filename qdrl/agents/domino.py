@@ -60,6 +60,7 @@ from qdrl.agents.sac import (
     make_sac,
     make_sac_losses,
     make_sac_networks,
+    sac_step,
 )
 from qdrl.config import NonNegativeFloat, PositiveFloat, UnitFloat, check_fields
 from qdrl.envs.skills import skill_of
@@ -249,31 +250,14 @@ def make_domino(
         alpha_loss, alpha_grad = jax.value_and_grad(sac_losses.alpha)(s.log_alpha, log_prob)
         lag_loss, lagrange_grad = jax.value_and_grad(losses.lagrange)(state.lagrange_logits, state.reward_avg)
 
-        critic_params, critic_opt_state = adam_step(s.critic_params, s.critic_opt_state, critic_grads, hp["critic_lr"])
         div_params, div_opt_state = adam_step(
             state.diversity_critic_params, state.diversity_critic_opt_state, div_grads, hp["critic_lr"]
         )
-        policy_params, policy_opt_state = adam_step(s.policy_params, s.policy_opt_state, actor_grads, hp["actor_lr"])
-        if sac.learn_alpha:
-            log_alpha, alpha_opt_state = adam_step(s.log_alpha, s.alpha_opt_state, alpha_grad, hp["alpha_lr"])
-        else:
-            log_alpha, alpha_opt_state = s.log_alpha, s.alpha_opt_state
         logits, lagrange_opt_state = adam_step(
             state.lagrange_logits, state.lagrange_opt_state, lagrange_grad, config.lagrange_lr
         )
         logits = jnp.clip(logits, -config.lagrange_clip, config.lagrange_clip)
-
-        new_sac = SACState(
-            policy_params=policy_params,
-            critic_params=critic_params,
-            target_critic_params=optax.incremental_update(critic_params, s.target_critic_params, hp["tau"]),
-            policy_opt_state=policy_opt_state,
-            critic_opt_state=critic_opt_state,
-            log_alpha=log_alpha,
-            alpha_opt_state=alpha_opt_state,
-            steps=s.steps + 1,
-            hparams=s.hparams,
-        )
+        new_sac = sac_step(s, critic_grads, actor_grads, alpha_grad, sac.learn_alpha)
         new = DOMiNOState(
             sac=new_sac,
             diversity_critic_params=div_params,

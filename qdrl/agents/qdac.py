@@ -59,6 +59,7 @@ from qdrl.agents.sac import (
     make_sac,
     make_sac_losses,
     make_sac_networks,
+    sac_step,
 )
 from qdrl.config import NonNegativeInt, PositiveFloat, UnitFloat, check_fields
 from qdrl.envs.skills import SkillSpace, skill_code, with_skill_code
@@ -284,32 +285,16 @@ def make_qdac(
         lag_loss, lagrange_grads = jax.value_and_grad(losses.lagrange)(state.lagrange_params, tr.obs, dist)
         alpha_loss, alpha_grad = jax.value_and_grad(sac_losses.alpha)(s.log_alpha, log_prob)
 
-        critic_params, critic_opt_state = adam_step(s.critic_params, s.critic_opt_state, critic_grads, hp["critic_lr"])
         feature_params, feature_opt_state = adam_step(
             state.feature_params, state.feature_opt_state, feature_grads, hp["critic_lr"]
         )
-        policy_params, policy_opt_state = adam_step(s.policy_params, s.policy_opt_state, actor_grads, hp["actor_lr"])
         if config.lagrange == "learned":
             lagrange_params, lagrange_opt_state = adam_step(
                 state.lagrange_params, state.lagrange_opt_state, lagrange_grads, config.lagrange_lr
             )
         else:
             lagrange_params, lagrange_opt_state = state.lagrange_params, state.lagrange_opt_state
-        if sac.learn_alpha:
-            log_alpha, alpha_opt_state = adam_step(s.log_alpha, s.alpha_opt_state, alpha_grad, hp["alpha_lr"])
-        else:
-            log_alpha, alpha_opt_state = s.log_alpha, s.alpha_opt_state
-        new_sac = SACState(
-            policy_params=policy_params,
-            critic_params=critic_params,
-            target_critic_params=optax.incremental_update(critic_params, s.target_critic_params, hp["tau"]),
-            policy_opt_state=policy_opt_state,
-            critic_opt_state=critic_opt_state,
-            log_alpha=log_alpha,
-            alpha_opt_state=alpha_opt_state,
-            steps=s.steps + 1,
-            hparams=s.hparams,
-        )
+        new_sac = sac_step(s, critic_grads, actor_grads, alpha_grad, sac.learn_alpha)
         new = QDACState(
             sac=new_sac,
             feature_params=feature_params,

@@ -179,6 +179,36 @@ def make_sac_losses(networks: SACNetworks, target_entropy: float) -> SACLosses:
     return SACLosses(critic=critic_loss, actor=actor_loss, alpha=alpha_loss)
 
 
+def sac_step(
+    state: SACState, critic_grads: Params, actor_grads: Params, alpha_grad: Array, learn_alpha: bool = True
+) -> SACState:
+    """SAC's parameters after one step: Adam on the critics, the actor and (if `learn_alpha`)
+    log alpha with the learning rates of `state.hparams`, then the Polyak target update
+    (Algorithm 1). Every agent built on SAC's networks (QDAC, DOMiNO) steps them with this."""
+    hp = state.hparams
+    critic_params, critic_opt_state = adam_step(
+        state.critic_params, state.critic_opt_state, critic_grads, hp["critic_lr"]
+    )
+    policy_params, policy_opt_state = adam_step(
+        state.policy_params, state.policy_opt_state, actor_grads, hp["actor_lr"]
+    )
+    if learn_alpha:
+        log_alpha, alpha_opt_state = adam_step(state.log_alpha, state.alpha_opt_state, alpha_grad, hp["alpha_lr"])
+    else:
+        log_alpha, alpha_opt_state = state.log_alpha, state.alpha_opt_state
+    return SACState(
+        policy_params=policy_params,
+        critic_params=critic_params,
+        target_critic_params=optax.incremental_update(critic_params, state.target_critic_params, hp["tau"]),
+        policy_opt_state=policy_opt_state,
+        critic_opt_state=critic_opt_state,
+        log_alpha=log_alpha,
+        alpha_opt_state=alpha_opt_state,
+        steps=state.steps + 1,
+        hparams=state.hparams,
+    )
+
+
 def make_sac(config: SACConfig, obs_size: int, action_size: int) -> Agent:
     """A SAC agent (Haarnoja et al. 2018) for flat observations and actions in [-1, 1]."""
     config.check()
@@ -248,35 +278,8 @@ def make_sac(config: SACConfig, obs_size: int, action_size: int) -> Agent:
         (actor_loss, log_prob), actor_grads = jax.value_and_grad(losses.actor, has_aux=True)(
             state.policy_params, state.critic_params, alpha, transitions.obs, actor_key
         )
-        critic_params, critic_opt_state = adam_step(
-            state.critic_params, state.critic_opt_state, critic_grads, hp["critic_lr"]
-        )
-        policy_params, policy_opt_state = adam_step(
-            state.policy_params, state.policy_opt_state, actor_grads, hp["actor_lr"]
-        )
-
         alpha_loss, alpha_grad = jax.value_and_grad(losses.alpha)(state.log_alpha, log_prob)
-        if config.learn_alpha:
-            log_alpha, alpha_opt_state = adam_step(
-                state.log_alpha, state.alpha_opt_state, alpha_grad, hp["alpha_lr"]
-            )
-        else:
-            log_alpha, alpha_opt_state = state.log_alpha, state.alpha_opt_state
-
-        target_critic_params = optax.incremental_update(
-            critic_params, state.target_critic_params, hp["tau"]
-        )
-        new_state = SACState(
-            policy_params=policy_params,
-            critic_params=critic_params,
-            target_critic_params=target_critic_params,
-            policy_opt_state=policy_opt_state,
-            critic_opt_state=critic_opt_state,
-            log_alpha=log_alpha,
-            alpha_opt_state=alpha_opt_state,
-            steps=state.steps + 1,
-            hparams=state.hparams,
-        )
+        new_state = sac_step(state, critic_grads, actor_grads, alpha_grad, config.learn_alpha)
         metrics = {
             "critic_loss": critic_loss,
             "actor_loss": actor_loss,
