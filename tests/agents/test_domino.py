@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from known_outputs import zeroed
 
 from qdrl import nets
 from qdrl.agents.domino import (
@@ -41,17 +42,6 @@ def batch(skills: list[int], reward: list[float] | None = None, seed: int = 0) -
     desc, next_desc = jax.random.normal(k[3], (n, D)), jax.random.normal(k[4], (n, D))
     zeros = jnp.zeros((n,))
     return Transition(obs, jnp.zeros((n, ACT)), r, next_obs, zeros.at[0].set(1.0), zeros, desc, next_desc)
-
-
-def zeroed(params: dict, bias: float = 0.0) -> dict:  # type: ignore[type-arg]
-    """Every weight and bias 0 (a network that outputs 0), each MLP's last layer's bias `bias`."""
-    out = jax.tree.map(jnp.zeros_like, params)
-    last: dict[str, str] = {}
-    for name in sorted(out):  # "<mlp>/~/linear_<i>": the highest i of each mlp
-        last[name.split("/~/")[0]] = name
-    for name in last.values():
-        out[name] = {**out[name], "b": out[name]["b"] + bias}
-    return out
 
 
 def test_nearest_other_skill_never_picks_itself() -> None:

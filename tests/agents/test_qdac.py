@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from known_outputs import zeroed
 
 from qdrl import nets
 from qdrl.agents.qdac import (
@@ -42,17 +43,6 @@ def batch(n: int = 4, seed: int = 0) -> Transition:
     reward = jax.random.normal(k[4], (n,))
     zeros = jnp.zeros((n,))
     return Transition(obs, jnp.zeros((n, ACT)), reward, next_obs, zeros.at[0].set(1.0), zeros, phi, phi)
-
-
-def zeroed(params: dict, bias: float = 0.0) -> dict:  # type: ignore[type-arg]
-    """Every weight and bias 0 (a network that outputs 0), each MLP's last layer's bias `bias`."""
-    out = jax.tree.map(jnp.zeros_like, params)
-    last: dict[str, str] = {}
-    for name in sorted(out):  # "<mlp>/~/linear_<i>": the highest i of each mlp
-        last[name.split("/~/")[0]] = name
-    for name in last.values():
-        out[name] = {**out[name], "b": out[name]["b"] + bias}
-    return out
 
 
 def test_pseudo_huber_and_cross_entropy_by_hand() -> None:
