@@ -4,7 +4,6 @@ specs, bad configs, exact resume, a loaded run's skills; and QDAC learning to re
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -12,8 +11,8 @@ import jax
 import numpy as np
 import pandas as pd
 import pytest
+from stopped_runs import assert_resumed_as_uninterrupted, stopped_copy
 
-from qdrl import checkpoint
 from qdrl.config import ConfigError, load_toml
 from qdrl.envs.skills import SkillSpace
 from qdrl.experiment import build_run, run
@@ -79,27 +78,11 @@ def test_a_run_resumed_after_its_first_checkpoint_matches_an_uninterrupted_one(t
     spec = tiny_spec("qdac")
     spec["log"]["plots"] = False
     full = run(spec, tmp_path / "full")
-    out = tmp_path / "stopped"
-    shutil.copytree(tmp_path / "full", out)
-    shutil.rmtree(checkpoint.latest(out / "checkpoints"))  # type: ignore[arg-type]
-    (out / "summary.json").unlink()
-    rows = (out / "metrics.csv").read_text().splitlines()
-    (out / "metrics.csv").write_text("\n".join(rows[:2]) + "\n")
-    episodes = (out / "skills.csv").read_text().splitlines()
-    (out / "skills.csv").write_text("\n".join(episodes[: 1 + 8]) + "\n")
-    resumed = run(spec, out, resume=True)
-    timing = {"wall_s", "compile_s", "startup_s", "run_s", "env_steps_per_s"}
-    keys = sorted(k for k, v in full.items() if isinstance(v, int | float) and k not in timing)
-    assert {"distance_to_skill", "lagrange", "feature_loss", "coverage"} <= set(keys)
-    for key in keys:
-        assert resumed[key] == full[key], key
-    final = checkpoint.latest(tmp_path / "full" / "checkpoints")
-    assert final is not None
-    with np.load(final / "state.npz") as a, np.load(out / "checkpoints" / final.name / "state.npz") as b:
-        assert a.files == b.files and len(a.files) > 20
-        for name in a.files:
-            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
-    assert (out / "skills.csv").read_text() == (tmp_path / "full" / "skills.csv").read_text()
+    stopped_copy(tmp_path / "full", tmp_path / "stopped", episodes_per_log_point=8)
+    resumed = run(spec, tmp_path / "stopped", resume=True)
+    assert_resumed_as_uninterrupted(
+        full, resumed, tmp_path / "full", tmp_path / "stopped", {"distance_to_skill", "lagrange", "feature_loss"}
+    )
 
 
 def test_a_loaded_run_plays_each_evaluation_skill(tmp_path: Path) -> None:

@@ -3,15 +3,15 @@ specs, bad configs, exact resume, a loaded run's skills; and METRA spreading its
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 import pytest
+from stopped_runs import assert_resumed_as_uninterrupted, stopped_copy
 
-from qdrl import checkpoint, specs
+from qdrl import specs
 from qdrl.config import ConfigError, load_toml
 from qdrl.experiment import build_run, run
 from qdrl.runs import load_run
@@ -69,25 +69,11 @@ def test_a_metra_run_resumed_after_its_first_checkpoint_matches_an_uninterrupted
     spec = tiny_spec("metra")
     spec["log"]["plots"] = False
     full = run(spec, tmp_path / "full")
-    out = tmp_path / "stopped"
-    shutil.copytree(tmp_path / "full", out)
-    shutil.rmtree(checkpoint.latest(out / "checkpoints"))  # type: ignore[arg-type]
-    (out / "summary.json").unlink()
-    rows = (out / "metrics.csv").read_text().splitlines()
-    (out / "metrics.csv").write_text("\n".join(rows[:2]) + "\n")
-    episodes = (out / "skills.csv").read_text().splitlines()
-    (out / "skills.csv").write_text("\n".join(episodes[: 1 + 8]) + "\n")
-    resumed = run(spec, out, resume=True)
-    timing = {"wall_s", "compile_s", "startup_s", "run_s", "env_steps_per_s"}
-    keys = sorted(k for k, v in full.items() if isinstance(v, int | float) and k not in timing)
-    assert {"cells_visited", "dual_lambda", "representation_loss"} <= set(keys)
-    for key in keys:
-        assert resumed[key] == full[key], key
-    final = checkpoint.latest(tmp_path / "full" / "checkpoints")
-    assert final is not None
-    with np.load(final / "state.npz") as a, np.load(out / "checkpoints" / final.name / "state.npz") as b:
-        for name in a.files:
-            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    stopped_copy(tmp_path / "full", tmp_path / "stopped", episodes_per_log_point=8)
+    resumed = run(spec, tmp_path / "stopped", resume=True)
+    assert_resumed_as_uninterrupted(
+        full, resumed, tmp_path / "full", tmp_path / "stopped", {"cells_visited", "dual_lambda", "representation_loss"}
+    )
 
 
 @pytest.mark.parametrize(

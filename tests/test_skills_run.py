@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -21,8 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
+from stopped_runs import assert_resumed_as_uninterrupted, stopped_copy
 
-from qdrl import checkpoint
 from qdrl.algorithms.skills import skill_columns, skill_task
 from qdrl.cli import main
 from qdrl.config import ConfigError, dump_toml, load_toml
@@ -199,39 +198,16 @@ def test_smerl_run_resumed_after_its_first_checkpoint_matches_an_uninterrupted_r
     spec = tiny_spec("smerl_diayn")  # 2 log points of 320 steps, a checkpoint after each
     spec["log"]["plots"] = False
     full = run(spec, tmp_path / "full")
-
-    # What a run stopped after its first checkpoint leaves: that checkpoint, its config
-    # and one row of metrics (checkpoints are complete once their directory exists).
     out = tmp_path / "stopped"
-    shutil.copytree(tmp_path / "full", out)
-    shutil.rmtree(checkpoint.latest(out / "checkpoints"))  # type: ignore[arg-type]
-    (out / "summary.json").unlink()
-    rows = (out / "metrics.csv").read_text().splitlines()
-    (out / "metrics.csv").write_text("\n".join(rows[:2]) + "\n")
-    episodes = (out / "skills.csv").read_text().splitlines()  # written at each log point
-    (out / "skills.csv").write_text("\n".join(episodes[: 1 + 8]) + "\n")
-    assert checkpoint.step_of(checkpoint.latest(out / "checkpoints")) == 1  # type: ignore[arg-type]
-
+    stopped_copy(tmp_path / "full", out, episodes_per_log_point=8)
     resumed = run(spec, out, resume=True)
-    timing = {"wall_s", "compile_s", "startup_s", "run_s", "env_steps_per_s"}
-    keys = sorted(k for k, v in full.items() if isinstance(v, int | float) and k not in timing)
-    assert {"eval_return", "coverage", "gate_open", "discriminator_loss", "train_return"} <= set(keys)
-    for key in keys:
-        assert resumed[key] == full[key], key
-    # The final states, parameters and buffers included, are bit-identical.
-    final = checkpoint.latest(tmp_path / "full" / "checkpoints")
-    assert final is not None and checkpoint.step_of(final) == 2
-    with np.load(final / "state.npz") as a, \
-            np.load(out / "checkpoints" / final.name / "state.npz") as b:
-        assert a.files == b.files and len(a.files) > 20
-        for name in a.files:
-            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    # The final states, parameters and buffers included, are bit-identical; skills.csv, as the
+    # stopped run left it (its first log point's 8 episodes), gets the resumed session's rows.
+    assert_resumed_as_uninterrupted(
+        full, resumed, tmp_path / "full", out, {"eval_return", "coverage", "gate_open", "discriminator_loss"}
+    )
     assert len((out / "metrics.csv").read_text().splitlines()) == 1 + 2
-    # skills.csv, as the stopped run left it (its first log point's 8 episodes): the resumed
-    # session appends its own, as metrics.csv's, bit for bit the uninterrupted run's.
-    skills = (out / "skills.csv").read_text()
-    assert skills == (tmp_path / "full" / "skills.csv").read_text()
-    assert len(skills.splitlines()) == 1 + 2 * 8
+    assert len((out / "skills.csv").read_text().splitlines()) == 1 + 2 * 8
 
 
 K, EPISODES, LOG_POINTS = 4, 8, 2
