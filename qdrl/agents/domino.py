@@ -60,6 +60,7 @@ from qdrl.agents.sac import (
     make_sac,
     make_sac_losses,
     make_sac_networks,
+    sac_metrics,
     sac_step,
 )
 from qdrl.config import NonNegativeFloat, PositiveFloat, UnitFloat, check_fields
@@ -274,12 +275,7 @@ def make_domino(
         lam = jax.nn.sigmoid(state.lagrange_logits[1:])
         satisfied = (state.reward_avg[1:] >= config.optimality_ratio * state.reward_avg[0]).astype(jnp.float32)
         metrics = {
-            "critic_loss": critic_loss,
-            "actor_loss": act_loss,
-            "alpha_loss": alpha_loss,
-            "alpha": alpha,
-            "entropy": -jnp.mean(log_prob),
-            **critic_aux,
+            **sac_metrics(critic_loss, act_loss, alpha_loss, alpha, log_prob, critic_aux),
             "diversity_critic_loss": div_loss,
             "diversity_q_mean": div_aux["q_mean"],
             "diversity_reward": jnp.mean(r_d),

@@ -59,6 +59,7 @@ from qdrl.agents.sac import (
     make_sac,
     make_sac_losses,
     make_sac_networks,
+    sac_metrics,
     sac_step,
 )
 from qdrl.config import NonNegativeInt, PositiveFloat, UnitFloat, check_fields
@@ -304,12 +305,7 @@ def make_qdac(
             lagrange_opt_state=lagrange_opt_state,
         )
         metrics = {
-            "critic_loss": critic_loss,
-            "actor_loss": act_loss,
-            "alpha_loss": alpha_loss,
-            "alpha": alpha,
-            "entropy": -jnp.mean(log_prob),
-            **critic_aux,
+            **sac_metrics(critic_loss, act_loss, alpha_loss, alpha, log_prob, critic_aux),
             "feature_loss": feat_loss,
             "feature_mean": psi_mean,
             "lagrange_loss": lag_loss,

@@ -209,6 +209,21 @@ def sac_step(
     )
 
 
+def sac_metrics(
+    critic_loss: Array, actor_loss: Array, alpha_loss: Array, alpha: Array, log_prob: Array,
+    critic_aux: dict[str, Array],
+) -> dict[str, Array]:
+    """The metrics of one SAC step, which every agent built on SAC's losses also logs."""
+    return {
+        "critic_loss": critic_loss,
+        "actor_loss": actor_loss,
+        "alpha_loss": alpha_loss,
+        "alpha": alpha,
+        "entropy": -jnp.mean(log_prob),
+        **critic_aux,
+    }
+
+
 def make_sac(config: SACConfig, obs_size: int, action_size: int) -> Agent:
     """A SAC agent (Haarnoja et al. 2018) for flat observations and actions in [-1, 1]."""
     config.check()
@@ -280,14 +295,6 @@ def make_sac(config: SACConfig, obs_size: int, action_size: int) -> Agent:
         )
         alpha_loss, alpha_grad = jax.value_and_grad(losses.alpha)(state.log_alpha, log_prob)
         new_state = sac_step(state, critic_grads, actor_grads, alpha_grad, config.learn_alpha)
-        metrics = {
-            "critic_loss": critic_loss,
-            "actor_loss": actor_loss,
-            "alpha_loss": alpha_loss,
-            "alpha": alpha,
-            "entropy": -jnp.mean(log_prob),
-            **critic_aux,
-        }
-        return new_state, metrics
+        return new_state, sac_metrics(critic_loss, actor_loss, alpha_loss, alpha, log_prob, critic_aux)
 
     return Agent(init=init, act=act, policy=policy, policy_params=policy_params, update=update)
