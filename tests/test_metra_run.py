@@ -93,16 +93,41 @@ def test_bad_config_names_the_key(algorithm: str, key: str, value: object, messa
 
 
 def test_every_spec_builds_and_the_suite_names_them() -> None:
-    assert {p.stem for p in SPECS} == {"metra_ant_omni", "metra_ant_omni_cpu", "lsd_ant_omni",
-                                      "lsd_ant_omni_cpu", "diayn_ant_omni", "dads_ant_omni"}
+    assert {p.stem for p in SPECS} == {
+        f"{a}_{t}{s}" for a in ("metra", "lsd") for t in ("ant_omni", "halfcheetah_omni") for s in ("", "_cpu")
+    } | {"diayn_ant_omni", "dads_ant_omni"}
     for path in SPECS:
         spec = load_toml(path)
         run_, _, _ = build_run(spec)
-        assert run_.task == "ant_omni" and spec["env"]["episode_length"] == 200
+        assert run_.task in ("ant_omni", "halfcheetah_omni") and spec["env"]["episode_length"] == 200
+        # METRA's settings: 2-D unit vectors on the ant, 16 discrete skills on the cheetah
+        if spec["experiment"]["algorithm"] in ("metra", "lsd"):
+            cheetah = run_.task == "halfcheetah_omni"
+            assert (spec["skills"]["num_skills"], spec["skills"]["discrete"]) == ((16, True) if cheetah else (2, False))
     assert specs.resolve("metra_baselines/dads_ant_omni").is_file()
-    # the comparison's runs share SAC's settings and their length
-    cpu = [load_toml(p) for p in SPECS if p.stem.endswith("_cpu") or p.parent.name == "metra_baselines"]
-    assert len({str((s["agent"], s["train"])) for s in cpu}) == 1
+    # each comparison's runs share SAC's settings and their length
+    for task in ("ant_omni", "halfcheetah_omni"):
+        cpu = [load_toml(p) for p in SPECS if (p.stem.endswith("_cpu") or p.parent.name == "metra_baselines")
+               and task in p.stem]
+        assert len(cpu) >= 2 and len({str((s["agent"], s["train"])) for s in cpu}) == 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [p.stem for p in SPECS if p.stem.endswith("_cpu")])
+def test_every_cpu_spec_runs_a_tiny_version(tmp_path: Path, name: str) -> None:
+    """Each 2-core spec, shrunk (20-step episodes, 2 log points), runs on its brax task and counts
+    the cells its skills visit: 1x1 x-y cells on the ant, 1-wide x bins on the cheetah."""
+    spec = load_toml(ROOT / "agents" / f"{name}.toml")
+    spec["env"]["episode_length"] = 20
+    spec["train"].update(total_env_steps=320, num_envs=4, batch_size=16, buffer_size=1000, learning_starts=80,
+                         grad_steps_per_iter=1, eval_every=160)
+    spec["agent"]["hidden"] = spec["skills"]["hidden"] = [16, 16]
+    spec["archive"].update(num_centroids=32, cvt_samples=2000)
+    spec["log"] = {"progress": False, "plots": False}
+    summary = run(spec, tmp_path)
+    assert summary["env_steps"] == 320 and summary["cells_visited"] >= 1
+    episodes = pd.read_csv(tmp_path / "skills.csv")
+    assert len(episodes.query("log_point == 1")) == spec["train"]["num_eval_envs"]
 
 
 def test_metra_spreads_its_skills_in_the_point_maze(tmp_path: Path) -> None:

@@ -136,5 +136,6 @@ def test_the_packaged_suites_name_only_specs_that_exist() -> None:
         suites.resolve_suite("seed_benchmark_cp")
     # the comparisons with METRA and QDAC: every method at one budget, on its paper's tasks
     metra, qdac = suites.load_suite("metra_cpu"), suites.load_suite("qdac_cpu")
-    assert sorted({e.algorithm for e in metra.entries}) == ["dads", "diayn", "lsd", "metra"] and len(metra.entries) == 8
+    assert sorted({e.algorithm for e in metra.entries}) == ["dads", "diayn", "lsd", "metra"] and len(metra.entries) == 12
+    assert sorted({e.task for e in metra.entries}) == ["ant_omni", "halfcheetah_omni"]
     assert sorted({e.task for e in qdac.entries}) == ["ant_velocity", "walker2d_feet_contact"]

@@ -19,7 +19,8 @@ a classifier of the violated constraint: the binary cross-entropy of its logit a
 [||(1 - gamma) psi(s, a, z) - z|| >= delta], so lambda rises where the constraint is
 violated and falls where it holds (as QDAC's code trains it). The critic is SAC's (twin,
 min target, entropy bonus; `qdrl.agents.sac`); psi learns by the same TD rule on the
-features, y = phi(s') + gamma m mean_i psi'_i(s', a'), a' ~ pi(.|s', z), m the bootstrap mask.
+features, y = phi(s') + gamma m mean_i psi'_i(s', a'), a' ~ pi(.|s', z) the value critic's
+target action, m the bootstrap mask.
 
 Each batch is joined by `relabel_batches` copies whose skills are redrawn from the prior:
 neither the reward nor the features depend on z, so every stored transition teaches every
@@ -266,7 +267,9 @@ def make_qdac(
     def update(state: QDACState, transitions: Transition, key: PRNGKey) -> tuple[QDACState, Metrics]:
         chex.assert_shape(transitions.obs, (None, obs_size))
         chex.assert_shape(transitions.next_desc, (None, d))
-        relabel_key, critic_key, feature_key, actor_key = jax.random.split(key, 4)
+        # One draw of a' ~ pi(.|s') for both critics' targets: the policy's pass on s' is then the
+        # same computation in both losses, which XLA evaluates once.
+        relabel_key, critic_key, actor_key = jax.random.split(key, 3)
         tr = relabel(transitions, relabel_key)
         s = state.sac
         hp = s.hparams
@@ -276,7 +279,7 @@ def make_qdac(
             hp["reward_scale"], critic_key,
         )
         (feat_loss, psi_mean), feature_grads = jax.value_and_grad(losses.feature, has_aux=True)(
-            state.feature_params, s.policy_params, state.target_feature_params, tr, hp["discount"], feature_key,
+            state.feature_params, s.policy_params, state.target_feature_params, tr, hp["discount"], critic_key,
         )
         (act_loss, (log_prob, dist, lam)), actor_grads = jax.value_and_grad(losses.actor, has_aux=True)(
             s.policy_params, s.critic_params, state.feature_params, state.lagrange_params, alpha, tr.obs,

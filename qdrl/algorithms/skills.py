@@ -114,7 +114,7 @@ __all__ = [
 # on one scale.
 SKILL_TASKS: tuple[str, ...] = (
     "point_maze", "ant_omni", "ant_trap", "ant_maze", "ant_uni", "halfcheetah_uni", "walker2d_uni",
-    *FEATURE_TASKS,
+    "halfcheetah_omni", *FEATURE_TASKS,
 )
 SkillTaskName = Annotated[str, OneOf(lambda: SKILL_TASKS)]
 # The skill model's metric on the progress bar: its value at the evaluation episodes' last step.

@@ -6,6 +6,8 @@ truncation. The state descriptor is a function of the brax pipeline state, picke
 by name (`STATE_DESCRIPTORS`):
 
 - "xy": the torso's x-y position (final-position tasks and skill discovery);
+- "x": the torso's x position alone (the planar robots' final-position task, METRA's
+  HalfCheetah coverage);
 - "feet_contact": which feet touch the ground, 0/1 per foot (the feet-contact QD tasks);
 - "velocity": the torso's linear velocity, x-y for the ant and the humanoid, x for
   the planar robots;
@@ -101,6 +103,7 @@ VELOCITY_DIMS: dict[str, int] = {
 
 # Names of the dimensions of the QDAC features that do not depend on the robot's feet.
 VELOCITY_NAMES = ("x velocity", "y velocity")
+X_NAMES = ("x",)
 JUMP_NAMES = ("lowest contact height",)
 ANGLE_NAMES = ("heading cos", "heading sin")
 ANGLE_RAW_NAMES = ("heading",)
@@ -109,6 +112,11 @@ ANGLE_RAW_NAMES = ("heading",)
 def torso_xy(pipeline_state: Any) -> Array:
     """x-y position of the first body (the torso in every brax locomotion robot)."""
     return pipeline_state.x.pos[0, :2]
+
+
+def torso_x(pipeline_state: Any) -> Array:
+    """(1,) x position of the first body (the torso)."""
+    return pipeline_state.x.pos[0, :1]
 
 
 def robot_of(name: str) -> str:
@@ -201,6 +209,11 @@ def _xy_factory(name: str, brax_env: Any) -> DescriptorFn:
     return torso_xy
 
 
+def _x_factory(name: str, brax_env: Any) -> DescriptorFn:
+    del name, brax_env
+    return torso_x
+
+
 def _feet_contact_factory(name: str, brax_env: Any) -> DescriptorFn:
     sys = brax_env.sys
     feet = feet_links(name, sys.link_names)
@@ -253,6 +266,7 @@ def _heading_factory(trigonometric: bool) -> DescriptorFactory:
 
 STATE_DESCRIPTORS: dict[str, DescriptorFactory] = {
     "xy": _xy_factory,
+    "x": _x_factory,
     "feet_contact": _feet_contact_factory,
     "velocity": _velocity_factory,
     "jump": _jump_factory,
@@ -269,7 +283,7 @@ def state_descriptor_names(descriptor: str, name: str) -> tuple[str, ...] | None
         return FEET_NAMES.get(robot)
     if descriptor == "velocity":
         return VELOCITY_NAMES[: VELOCITY_DIMS[robot]] if robot in VELOCITY_DIMS else None
-    return {"jump": JUMP_NAMES, "angle": ANGLE_NAMES, "angle_raw": ANGLE_RAW_NAMES}.get(descriptor)
+    return {"x": X_NAMES, "jump": JUMP_NAMES, "angle": ANGLE_NAMES, "angle_raw": ANGLE_RAW_NAMES}.get(descriptor)
 
 
 def no_forward_reward(name: str) -> RewardFn:
@@ -358,7 +372,7 @@ class BraxEnv(Env):
       backend: brax physics pipeline, one of `BACKENDS`.
       episode_length: time limit (truncation).
       state_descriptor: a name from `STATE_DESCRIPTORS` ("xy", "feet_contact", "velocity",
-        "jump", "angle", "angle_raw") or a function of the pipeline state.
+        "x", "jump", "angle", "angle_raw") or a function of the pipeline state.
       reward: None (brax's reward), a name from `REWARDS` ("no_forward") or a
         function of the brax state after the step.
       env_kwargs: passed to the brax environment's constructor.

@@ -35,12 +35,22 @@ TIME_MAJOR_EXTRAS = frozenset({"transitions", "mask", "recorded"})
 
 
 class AddResult(NamedTuple):
-    """Per-candidate outcome of `repertoire.add`, for emitters that rank offspring."""
+    """Per-candidate outcome of `repertoire.add`, for emitters that rank offspring.
+
+    Archives without cells of their own (proximity, density, discount-model archives) judge
+    each candidate themselves: they fill `status` and `value` (`qdrl.qd.emitters.rankers`
+    then uses them as they are) and `info`, the per-candidate fields their rankers read
+    ("novelty", "local_competition", "density"), as pyribs' `add_info`.
+    """
 
     added: Array  # (n,) bool: the candidate is now the elite of its cell
     new_cell: Array  # (n,) bool: it filled an empty cell
     improvement: Array  # (n,) fitness minus the cell's previous elite (its fitness if new)
     cell: Array  # (n,) int32 cell index (-1 when rejected outright, e.g. NaN fitness)
+    # (n,) int32 pyribs' add status (0 not added, 1 improved, 2 new), when the archive judges it
+    status: Array | None = None
+    value: Array | None = None  # (n,) float32 what the status ranks by (improvement), with `status`
+    info: dict[str, Array] | None = None  # (n,) per-candidate fields for rankers
 
 
 class Repertoire(Protocol):

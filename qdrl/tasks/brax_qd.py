@@ -14,6 +14,7 @@ quality-diversity algorithms on neuroevolution for reinforcement learning") uses
 | hopper_uni | feet-contact rate (1) | [0, 1] | forward + survival - control | 0.9 |
 | humanoid_uni | feet-contact rates (2) | [0, 1]^2 | forward + survival - control | 0.0 |
 | ant_omni | final torso x-y | [-30, 30]^2 | survival - control | 3.0 |
+| halfcheetah_omni | final torso x | [-0.75 T, 0.75 T] | -control | 0.6 (exact) |
 | humanoid_omni | final torso x-y | [-30, 30]^2 | survival - control | 0.0 |
 | ant_trap | final torso x-y | [0, 30] x [-8, 8] | forward + survival - control | 3.38 |
 | ant_maze | final torso x-y | [-5, 40]^2 | -sum of distances to the target | 40.32 |
@@ -86,6 +87,11 @@ DEFAULT_BACKEND: Backend = "spring"
 
 
 FINAL_XY_NAMES = ("final x", "final y")
+# halfcheetah_omni's bound on the final x, per step of the episode: 15 m/s for brax's 0.05 s
+# step, above the fastest running gaits SAC learns (about 12 m/s).
+CHEETAH_X_PER_STEP = 0.75
+# The largest control cost per step of halfcheetah (0.1 |a|^2, six actions in [-1, 1]).
+CHEETAH_MAX_CONTROL_COST = 0.6
 
 
 def brax_policy_task(
@@ -236,6 +242,29 @@ def ant_omni(
     return _omni("ant_omni", "ant", episode_length, backend, policy_hidden, eval_batch, policy_activation)
 
 
+def halfcheetah_omni(
+    episode_length: PositiveInt = 1000,
+    backend: Backend = DEFAULT_BACKEND,
+    policy_hidden: tuple[PositiveInt, ...] = (64, 64),
+    eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
+    policy_activation: Activation = "tanh",
+) -> Task:
+    """HalfCheetah, final torso x in [-0.75 T, 0.75 T] (T the episode length); fitness = minus
+    the control cost (brax's reward without its run term: -0.1 |a|^2).
+
+    The one-dimensional final-position task: running either way is diversity, not fitness.
+    METRA (Park, Rybkin & Levine 2024) measures its HalfCheetah skills by the x positions they
+    reach (the count of 1-wide x bins visited). Its QD offset is the largest control cost,
+    0.6 per step, so every return is non-negative. Default backend spring.
+    """
+    env = BraxEnv("halfcheetah", backend, episode_length, state_descriptor="x", reward="no_forward")
+    bound = CHEETAH_X_PER_STEP * episode_length
+    return brax_policy_task(
+        "halfcheetah_omni", env, "final", (-bound,), (bound,), -CHEETAH_MAX_CONTROL_COST * episode_length,
+        policy_hidden, eval_batch, ("final x",), policy_activation,
+    )
+
+
 def humanoid_omni(
     episode_length: PositiveInt = 1000,
     backend: Backend = DEFAULT_BACKEND,
@@ -314,6 +343,7 @@ BRAX_TASKS = {
     "hopper_uni": hopper_uni,
     "humanoid_uni": humanoid_uni,
     "ant_omni": ant_omni,
+    "halfcheetah_omni": halfcheetah_omni,
     "humanoid_omni": humanoid_omni,
     "ant_trap": ant_trap,
     "ant_maze": ant_maze,

@@ -118,6 +118,7 @@ def test_task_bounds_offsets_and_genotypes(evaluated: Evaluated) -> None:
         "humanoid_uni": ([0.0] * 2, [1.0] * 2),
         "ant_omni": ([-30.0, -30.0], [30.0, 30.0]),
         "humanoid_omni": ([-30.0, -30.0], [30.0, 30.0]),
+        "halfcheetah_omni": ([-0.75 * EPISODE], [0.75 * EPISODE]),
         "ant_trap": ([0.0, -8.0], [30.0, 8.0]),
         "ant_maze": ([-5.0, -5.0], [40.0, 40.0]),
     }
@@ -129,6 +130,7 @@ def test_task_bounds_offsets_and_genotypes(evaluated: Evaluated) -> None:
         "humanoid_uni": 0.0,
         "ant_omni": 3.0,
         "humanoid_omni": 0.0,
+        "halfcheetah_omni": 0.6,
         "ant_trap": 3.38,
         "ant_maze": math.hypot(40.0, 40.0),
     }
@@ -151,10 +153,10 @@ def test_task_bounds_offsets_and_genotypes(evaluated: Evaluated) -> None:
 
 
 # Each task compiles a brax rollout of its own; the default run checks the tasks that the
-# fitness tests below evaluate anyway (three of the ant's four, sharing `evaluated`) and one
+# fitness tests below evaluate anyway (three of the ant's four and halfcheetah_omni, sharing `evaluated`) and one
 # feet-contact task (halfcheetah_uni); the other robots, and ant_trap (whose walls
 # tests/test_brax_walls.py checks in the default run), run with `-m slow`.
-DEFAULT = ("halfcheetah_uni", "ant_uni", "ant_omni", "ant_maze")
+DEFAULT = ("halfcheetah_uni", "ant_uni", "ant_omni", "ant_maze", "halfcheetah_omni")
 
 
 def _cases(names: list[str]) -> list[Any]:
@@ -202,6 +204,7 @@ def _survival_minus_control(
     ("name", "healthy", "ctrl_weight", "scale"),
     [
         ("ant_omni", 1.0, 0.5, 1.0),
+        ("halfcheetah_omni", 0.0, 0.1, 1.0),
         pytest.param("humanoid_omni", 5.0, 0.1, 0.4, marks=pytest.mark.slow),
     ],
 )

@@ -53,6 +53,7 @@ class Outcome(NamedTuple):
     descriptors: Array  # (b, D)
     status: Array  # (b,) int32: 0 not added, 1 improved an occupied cell, 2 new cell
     value: Array  # (b,) improvement over the cell's elite or threshold (-inf when rejected)
+    info: dict[str, Array] | None = None  # (b,) fields of the archive's own judgement (`AddResult.info`)
 
 
 def outcome(repertoire: Any, fitnesses: Array, descriptors: Array, added: AddResult) -> Outcome:
@@ -64,8 +65,19 @@ def outcome(repertoire: Any, fitnesses: Array, descriptors: Array, added: AddRes
     counts as new when its cell's threshold was -inf (CMA-ME) or it beats
     `threshold_min` (CMA-MAE: `value` is then fitness - threshold_min); in an
     occupied cell it improved when `value` > 0. Pass the whole batch: a slice
-    cannot see a cell that another part of the batch filled.
+    cannot see a cell that another part of the batch filled. An archive that sets
+    `added.status` (proximity, density, discount archives) is taken at its word, and its
+    `added.info` is passed on for the rankers that read it.
     """
+    if added.status is not None:  # an archive that judges its candidates itself
+        value = added.value if added.value is not None else jnp.where(added.added, 0.0, -jnp.inf)
+        return Outcome(
+            fitnesses=jnp.asarray(fitnesses, jnp.float32),
+            descriptors=jnp.asarray(descriptors, jnp.float32),
+            status=added.status.astype(jnp.int32),
+            value=jnp.asarray(value, jnp.float32),
+            info=added.info,
+        )
     cell = added.cell
     valid = cell >= 0
     fit = repertoire.fitnesses
