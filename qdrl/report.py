@@ -16,6 +16,10 @@ everywhere (the env steps of a function task) is never an axis. It writes:
 - `<task>/<metric>.png`: one figure per metric, one panel per x axis;
 - `<task>/repertoires.png`: each spec's final repertoire (its lowest seed) side by
   side, on one colour scale, axes named after the task's descriptors;
+- `<task>/fitness_histogram.png` and `<task>/fitness_ecdf.png`, for QD runs that wrote
+  their repertoire (repertoire.npz / repertoire.csv, one objective): a histogram of each
+  spec's final elites' fitnesses (its lowest seed), and their empirical CDF, per spec
+  the median over seeds with a min-max band;
 - `final.csv`: the final value of every metric, per task and spec: seeds, mean,
   std, min, max, and the interquartile mean (IQM) with its bootstrap interval, as
   rliable recommends for RL returns (Agarwal et al. 2021);
@@ -208,6 +212,47 @@ def _repertoire_of(run: LoadedRun) -> tuple[Any, list[float], list[float], list[
     return rep, low, high, names if names and len(names) == len(low) else None
 
 
+def _final_fitnesses(run: LoadedRun) -> np.ndarray | None:
+    """The fitnesses of a QD run's final elites, from repertoire.npz (its filled cells) or
+    repertoire.csv; None for a run without them, or whose elites have several objectives."""
+    npz, table = run.path / "repertoire.npz", run.path / "repertoire.csv"
+    if npz.is_file():
+        with np.load(npz) as f:
+            fitnesses = f["fitnesses"] if "fitnesses" in f.files else None
+        if fitnesses is None or fitnesses.ndim != 1:
+            return None
+        return fitnesses[fitnesses > -np.inf]
+    if table.is_file():
+        with table.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        if not rows or "fitness" not in rows[0]:
+            return None
+        return np.asarray([float(r["fitness"]) for r in rows], dtype=np.float64)
+    return None
+
+
+def _plot_distributions(group: Group, task_dir: Path) -> dict[str, str] | None:
+    """`fitness_histogram.png` (each spec's lowest seed) and `fitness_ecdf.png` (every seed) of
+    the group's QD runs that wrote their repertoire; None when none did."""
+    seeds: dict[str, list[tuple[int, np.ndarray]]] = {}
+    for label, runs in group.runs.items():
+        for run in runs:
+            fitnesses = _final_fitnesses(run)
+            if fitnesses is not None:
+                seeds.setdefault(label, []).append((run.seed, fitnesses))
+    if not seeds:
+        return None
+    histogram = plotting.plot_fitness_histogram(
+        {f"{label}, seed {found[0][0]}": found[0][1] for label, found in seeds.items()},
+        task_dir / "fitness_histogram.png", title=f"{group.task}: final elites' fitnesses",
+    )
+    ecdf = plotting.plot_fitness_ecdf(
+        {label: [f for _, f in found] for label, found in seeds.items()},
+        task_dir / "fitness_ecdf.png", title=f"{group.task}: empirical CDF of the final elites' fitnesses",
+    )
+    return {"histogram": str(histogram), "ecdf": str(ecdf)}
+
+
 def throughput(group: Group) -> list[dict[str, Any]]:
     """Per spec of a task: seeds, mean environment steps, mean wall and run time, and the mean
     environment steps per hour of wall time and of run time (runs that wrote their summary)."""
@@ -299,8 +344,8 @@ def report(
     resamples: int = 2000,
 ) -> dict[str, Any]:
     """Writes the report of the runs at or under `paths` into `out_dir` (see the module
-    docstring); returns {"out", "groups": {task: {"labels", "figures", "repertoires"}},
-    "table", "csv"}. RunError names a path that holds no run."""
+    docstring); returns {"out", "groups": {task: {"labels", "figures", "repertoires",
+    "distributions"}}, "table", "csv"}. RunError names a path that holds no run."""
     groups = collect(paths)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -353,10 +398,12 @@ def report(
                 repertoires, task_dir / "repertoires.png", low, high,
                 title=f"{group.task}: final repertoires", labels=names,
             )
+        distributions = _plot_distributions(group, task_dir)
         result["groups"][group.task] = {
             "labels": {label: [r.seed for r in runs] for label, runs in group.runs.items()},
             "figures": figures,
             "repertoires": str(rep_path) if rep_path else None,
+            "distributions": distributions,
         }
         speed = throughput(group)
         speed_rows.extend(speed)
@@ -369,7 +416,9 @@ def report(
                 {"task": group.task, "perturbation": name, "spec": label, "value": v, "best_return": b, "seeds": n}
                 for name, by_label in curves.items() for label, points in by_label.items() for v, b, n in points
             )
-        md += _task_section(group, [r for r in csv_rows if r["task"] == group.task], figures, rep_path, out, speed)
+        md += _task_section(
+            group, [r for r in csv_rows if r["task"] == group.task], figures, rep_path, out, speed, distributions
+        )
 
     csv_path = out / "final.csv"
     fields = ["task", "spec", "metric", "seeds", "mean", "std", "min", "max", "iqm", "iqm_low", "iqm_high"]
@@ -399,6 +448,7 @@ def report(
 def _task_section(
     group: Group, rows: list[dict[str, Any]], figures: list[dict[str, Any]], rep_path: Path | None, out: Path,
     speed: Sequence[Mapping[str, Any]] = (),
+    distributions: Mapping[str, str] | None = None,
 ) -> list[str]:
     """report.md's section of one task: the headline table, the throughput table, then the figures."""
     lines = [f"## {group.task}", ""]
@@ -428,6 +478,8 @@ def _task_section(
         lines.append(f"![{figure['metric']}]({Path(figure['path']).relative_to(out).as_posix()})")
     if rep_path is not None:
         lines.append(f"![repertoires]({rep_path.relative_to(out).as_posix()})")
+    for name, path in (distributions or {}).items():
+        lines.append(f"![fitness {name}]({Path(path).relative_to(out).as_posix()})")
     lines.append("")
     return lines
 

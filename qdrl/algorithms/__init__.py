@@ -58,6 +58,12 @@ ALGORITHMS: dict[str, Recipe] = {
     "omg_mega": qd.OMG_MEGA,
     "cma_mega": qd.CMA_MEGA,
     "cma_maega": qd.CMA_MAEGA,
+    "ns_cma": qd.NS_CMA,
+    "nslc": qd.NSLC,
+    "nslc_cma_imp": qd.NSLC_CMA_IMP,
+    "dds": qd.DDS,
+    "dms": qd.DMS,
+    "dns": qd.DNS,
     # QD-RL: MAP-Elites with actor-critic, evolution-strategy and PBT emitters
     "pga_me": qd.PGA_ME_RECIPE,
     "qdpg": qd.QDPG_RECIPE,

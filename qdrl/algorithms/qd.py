@@ -43,6 +43,12 @@ from qdrl.algorithms.base import (
     last_values,
     scalar,
 )
+from qdrl.algorithms.search_archives import (
+    check_capacity,
+    check_rankers,
+    make_search_archive,
+    parse_search_archive,
+)
 from qdrl.algorithms.task_spec import make_task_of, parse_task
 from qdrl.config import (
     ConfigError,
@@ -92,6 +98,12 @@ from qdrl.qd.metrics import qd_metrics, range_qd_score
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, write_csv
 from qdrl.qd.repertoires.cvt import cvt_cells
+from qdrl.qd.repertoires.result import (
+    SEARCH_METRICS,
+    ResultArchived,
+    result_archive,
+    search_archive_metrics,
+)
 from qdrl.skill_metrics import archive_skill_metrics
 from qdrl.tasks import TASKS, Task
 from qdrl.tasks.brax_features import feature_space
@@ -507,18 +519,25 @@ def parse_task_and_qd(
 
 def _parse(
     spec: Mapping[str, Any], exp: ExperimentConfig, source: EmitterSource, repertoire_defaults: Mapping[str, Any],
-    container: Container | None = None,
+    container: Container | None = None, search_defaults: Mapping[str, Any] | None = None,
 ) -> Sections:
     repertoire = parse_repertoire(spec, source.default_repertoire, repertoire_defaults)
+    search = parse_search_archive(spec, search_defaults)
+    if search is not None and container is not None:
+        raise ConfigError("search_archive: this algorithm keeps its own container; remove [search_archive]")
     config = source.parse(spec, exp)
     where = "emitters" if isinstance(config, EmitterPool) else source.where
     task, qd = parse_task_and_qd(spec, exp, config.offspring, where)
     source.check(config, task, qd)
+    if search is not None:
+        check_capacity(search, config.offspring)
+    if container is None:
+        check_rankers(search, config)
     tables = source.tables(config)
     order = [k for k in tables if k in ("emitter", "emitters", "scheduler")]
     sections = {
-        "task": task, "repertoire": repertoire, **{k: tables[k] for k in order}, "qd": qd,
-        **{k: v for k, v in tables.items() if k not in order},
+        "task": task, "repertoire": repertoire, **({"search_archive": search} if search is not None else {}),
+        **{k: tables[k] for k in order}, "qd": qd, **{k: v for k, v in tables.items() if k not in order},
     }
     return sections if container is None else {**sections, **container.parse(spec, sections, exp)}
 
@@ -571,8 +590,9 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
         "env_steps": int(state.env_steps),
     }
     row.update(last_values(m, QD_METRICS))
-    if "range_qd_score" in m:  # repertoire.fitness_range given
-        row.update(last_values(m, ("range_qd_score",)))
+    for extra in ("range_qd_score", *SEARCH_METRICS):  # repertoire.fitness_range, [search_archive]
+        if extra in m:
+            row.update(last_values(m, (extra,)))
     row["added_per_iter"] = float(np.mean(m["added"]))
     row.update({k: scalar(v) for k, v in jax.device_get(emitter_metrics(emitter, state.emitter_state)).items()})
     return row
@@ -605,6 +625,8 @@ def with_range_score(
     and on a feature task (`space`) the repertoire read as a library of skills
     (`archive_skill_metrics`, as every skill method there logs it); jittable."""
     out = qd_metrics(repertoire, qd_offset)
+    if isinstance(repertoire, ResultArchived):
+        out.update(search_archive_metrics(repertoire.search))
     if fitness_range is not None:
         out["range_qd_score"] = range_qd_score(repertoire, fitness_range)
     if space is not None:
@@ -639,8 +661,12 @@ def _build(
     parts = source.build(config, task, ctx)
     lapack = single_threaded_lapack if source.uses_cma_es(config) else None
 
+    search_cfg = sections.get("search_archive")
+
     def empty(seed: int | None, centroids: Any) -> Any:
         cells = make_repertoire(rep_cfg, task, parts.example_genotype, seed, centroids)
+        if search_cfg is not None:  # the repertoire is the result archive beside the search archive
+            return make_search_archive(search_cfg, task, parts.example_genotype, cells, seed)
         return cells if container is None else container.wrap(cells, sections, task, parts.example_genotype)
 
     @functools.cache
@@ -651,7 +677,7 @@ def _build(
             repertoire = empty(ctx.seed, ctx.centroids)
         options: dict[str, Any] = {} if container is None else {"metrics_fn": container.metrics(task)}
         space = feature_space(task.name)
-        if container is None and (rep_cfg.fitness_range is not None or space is not None):
+        if container is None and (rep_cfg.fitness_range is not None or space is not None or search_cfg is not None):
             options["metrics_fn"] = functools.partial(
                 with_range_score, fitness_range=rep_cfg.fitness_range, space=space
             )
@@ -676,7 +702,7 @@ def _build(
 
     def finish(state: Any, rows: list[Row], out_dir: Path) -> dict[str, Any]:
         del rows
-        rep = jax.device_get(state.repertoire)
+        rep = result_archive(jax.device_get(state.repertoire))
         if container is not None:
             return container.finish(rep, out_dir, task, ctx.algorithm)
         export_npz(rep, out_dir / "repertoire.npz")
@@ -686,7 +712,7 @@ def _build(
         return {"qd_offset": task.qd_offset, **reevaluated(qd, qd_parts, rep, out_dir, ctx.seed, labels), **extra}
 
     def plot(state: Any, rows: list[Row], out_dir: Path) -> None:
-        rep = jax.device_get(state.repertoire)
+        rep = result_archive(jax.device_get(state.repertoire))
         if container is not None:
             container.plot(rep, out_dir, task, ctx.algorithm)
         else:
@@ -723,13 +749,16 @@ def qd_recipe(
     repertoire: Mapping[str, Any] | None = None,
     description: str = "",
     container: Container | None = None,
+    search_archive: Mapping[str, Any] | None = None,
 ) -> Recipe:
     """The recipe of MAP-Elites with the emitter of `source` (`repertoire`: defaults of
     `[repertoire]`, e.g. CMA-MAE's learning rate; `container`: another container than
-    one elite per cell)."""
+    one elite per cell; `search_archive`: defaults of `[search_archive]`, the archive that
+    steers the search beside the repertoire, which then only records results)."""
     defaults = dict(repertoire or {})
+    search = dict(search_archive or {})
     return Recipe(
-        parse=lambda spec, exp: _parse(spec, exp, source, defaults, container),
+        parse=lambda spec, exp: _parse(spec, exp, source, defaults, container, search),
         build=lambda sections, ctx: _build(sections, ctx, source, container),
         length_key="qd.num_iterations",
         description=description,
@@ -772,3 +801,48 @@ DCRL_ME_RECIPE = qd_recipe(DCRL_ME, description="DCRL-ME (Faldor et al. 2024)")
 ME_ES_RECIPE = qd_recipe(ME_ES, description="ME-ES (Colas et al. 2020)")
 ME_PBT_SAC = qd_recipe(me_pbt_source("sac"), description="ME-PBT of SAC agents (Pierrot & Flajolet 2023)")
 ME_PBT_TD3 = qd_recipe(me_pbt_source("td3"), description="ME-PBT of TD3 agents (Pierrot & Flajolet 2023)")
+
+# The archives of pyribs' sphere example and QDax's DNS example (`[search_archive]`; the
+# repertoire is the result archive): each row's emitters and search archive, as they set them.
+_CMA_NOVELTY = {"kind": "cma_improvement", "sigma0": 0.5}
+NS_CMA = qd_recipe(
+    registry_source(EmitterFamily(
+        {**_CMA_NOVELTY, "ranker": "nov", "selection_rule": "mu", "restart_rule": "basic"}, CMA_KINDS,
+    )),
+    search_archive={"kind": "proximity", "k_neighbors": 15},
+    description="Novelty search with CMA-ES (Lehman & Stanley 2011; pyribs' ns_cma)",
+)
+NSLC = qd_recipe(
+    registry_source(EmitterFamily(
+        {**_CMA_NOVELTY, "ranker": "nslc", "selection_rule": "filter", "restart_rule": "no_improvement"}, CMA_KINDS,
+    )),
+    search_archive={"kind": "proximity", "k_neighbors": 15, "local_competition": True},
+    description="Novelty search with local competition (Lehman & Stanley 2011; pyribs' nslc)",
+)
+NSLC_CMA_IMP = qd_recipe(
+    registry_source(EmitterFamily(
+        {**_CMA_NOVELTY, "ranker": "2imp", "selection_rule": "filter", "restart_rule": "no_improvement"}, CMA_KINDS,
+    )),
+    search_archive={"kind": "proximity", "k_neighbors": 15, "local_competition": True},
+    description="NSLC's archive with CMA-ME's improvement ranking (pyribs' nslc_cma_imp)",
+)
+DDS = qd_recipe(
+    registry_source(EmitterFamily(
+        {"kind": "cma_improvement", "sigma0": 1.5, "ranker": "density", "selection_rule": "mu",
+         "restart_rule": "basic"}, CMA_KINDS,
+    )),
+    search_archive={"kind": "density"},
+    description="Density Descent Search (Lee et al. 2024)",
+)
+DMS = qd_recipe(
+    registry_source(EmitterFamily(
+        {**_CMA_NOVELTY, "ranker": "imp", "selection_rule": "mu", "restart_rule": "basic"}, CMA_KINDS,
+    )),
+    search_archive={"kind": "discount"},
+    description="Discount Model Search (Tjanaka et al. 2026)",
+)
+DNS = qd_recipe(
+    registry_source(default_repertoire="cvt"),
+    search_archive={"kind": "dns"},
+    description="Dominated Novelty Search (Bahlous-Boldi et al. 2025)",
+)

@@ -1,8 +1,9 @@
 """Plots of runs: learning curves, QD repertoire heatmaps, Pareto fronts and skills.
 
 Modules by what they draw: `curves` (one run's metrics, runs compared), `repertoires`
-(fitness heatmaps), `pareto` (fronts, MOME's cells), `skills` (trajectories, maze
-walls); `_common` holds the shared helpers.
+(fitness heatmaps), `distributions` (fitness histograms and empirical CDFs), `pareto`
+(fronts, MOME's cells), `skills` (trajectories, maze walls); `_common` holds the shared
+helpers.
 
 Every plotting function writes a PNG, draws into the caller's matplotlib objects, or
 both. Single-panel functions take `ax` (an Axes), multi-panel ones `fig` (an empty
@@ -42,6 +43,8 @@ _WHERE = {
     "default_y_keys": "curves",
     "plot_comparison": "curves",
     "plot_curves": "curves",
+    "plot_fitness_ecdf": "distributions",
+    "plot_fitness_histogram": "distributions",
     "plot_cell_fronts": "pareto",
     "plot_cell_hypervolumes": "pareto",
     "plot_pareto_front": "pareto",
@@ -70,6 +73,7 @@ if TYPE_CHECKING:
     from qdrl.plotting._common import _tidy_x as _tidy_x
     from qdrl.plotting.curves import _draw_comparison as _draw_comparison
     from qdrl.plotting.curves import default_x_keys, default_y_keys, plot_comparison, plot_curves
+    from qdrl.plotting.distributions import plot_fitness_ecdf, plot_fitness_histogram
     from qdrl.plotting.feature_skills import plot_feature_skills, plot_profiles
     from qdrl.plotting.pareto import plot_cell_fronts, plot_cell_hypervolumes, plot_pareto_front
     from qdrl.plotting.repertoires import _colour_scale as _colour_scale
@@ -107,6 +111,8 @@ __all__ = [
     "plot_comparison",
     "plot_curves",
     "plot_feature_skills",
+    "plot_fitness_ecdf",
+    "plot_fitness_histogram",
     "plot_parallel_axes",
     "plot_pareto_front",
     "plot_profiles",

@@ -240,6 +240,18 @@ def plot_skills(
             counts = np.maximum(np.cumsum(valid, axis=0), 1.0)[..., None]
             traj = np.cumsum(traj * valid[..., None], axis=0) / counts
         evaluations.append((name, traj, valid))
+    if evaluations[0][1].shape[2] == 1:
+        # One descriptor dimension (halfcheetah_omni's x): drawn against the step, as METRA's
+        # figures draw HalfCheetah's skills; a 1-D archive has no panel of its own.
+        evaluations = [
+            (name, np.concatenate([traj, np.broadcast_to(np.arange(traj.shape[0], dtype=np.float64)[:, None, None],
+                                                         traj.shape)], axis=-1), valid)
+            for name, traj, valid in evaluations
+        ]
+        steps = float(evaluations[0][1].shape[0])
+        low, high = (*low[:1], 0.0), (*high[:1], steps)
+        labels = (*(labels or ("descriptor 0",))[:1], "step")
+        dims, archive = (0, 1), None
     if bounds not in ("data", "task"):
         raise ValueError(f"bounds: expected 'data' or 'task', got {bounds!r}")
     if ax is not None and fig is not None:

@@ -135,7 +135,7 @@ def test_bad_archive_and_emitter_options_are_rejected() -> None:
         _grid(0.01)
     for kw, message in (
         ({"sigma0": 0.0}, "emitter.sigma0: expected a number > 0, got 0.0"),
-        ({"ranker": "best"}, "emitter.ranker: expected one of ['2imp', '2obj', '2rd', 'imp', 'obj', 'rd'] or nothing"),
+        ({"ranker": "best"}, "emitter.ranker: expected one of ['2imp', '2obj', '2rd', 'density', 'imp', 'nov', 'nslc', 'obj', 'rd'] or nothing"),
         ({"selection_rule": "all"}, "emitter.selection_rule: expected one of 'filter', 'mu', got 'all'"),
         ({"restart_rule": "never"}, "emitter.restart_rule: expected one of 'no_improvement', 'basic' or a positive integer"),
         ({"num_instances": 0}, "emitter.num_instances: expected a positive integer"),

@@ -76,7 +76,7 @@ def add_padded(repertoire, ids, descriptors, fitnesses):
     genotypes = None if ids is None else params_batch(np.concatenate([ids, np.zeros(pad, int)]))
     new, result = jit_add(repertoire, genotypes, descriptors, fitnesses)
     assert not bool(jnp.any(result.added[k:]))
-    return new, AddResult(*(x[:k] for x in result))
+    return new, jax.tree.map(lambda x: x[:k], result)
 
 
 def params_batch(ids: np.ndarray) -> dict:

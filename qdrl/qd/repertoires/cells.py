@@ -45,6 +45,8 @@ from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
 __all__ = [
     "CellRepertoire",
+    "Occupancy",
+    "Slots",
     "as_bounds",
     "check_batch",
     "cvt_repertoire",
@@ -239,8 +241,61 @@ def write_rows(storage: Genotype, target: Array, rows: Genotype) -> Genotype:
     )
 
 
+class Occupancy:
+    """The views every container of elites shares: `fitnesses` (C,) is -inf where a cell or
+    slot is empty. Mixed into the repertoires' frozen dataclasses."""
+
+    fitnesses: Array
+
+    @property
+    def filled(self) -> Array:
+        """(C,) bool, True where a cell or slot holds an elite."""
+        return self.fitnesses > -jnp.inf
+
+    @property
+    def num_filled(self) -> Array:
+        """() int32, number of filled cells or slots."""
+        return jnp.sum(self.filled, dtype=jnp.int32)
+
+    @property
+    def is_empty(self) -> Array:
+        """() bool, True when nothing is stored (then `sample` returns NaN genotypes)."""
+        return self.num_filled == 0
+
+
+class Slots(Occupancy):
+    """`Occupancy` of a container of C slots without cells (unstructured, proximity, DNS), and
+    uniform sampling among the stored genotypes."""
+
+    genotypes: Genotype
+    descriptors: Array
+
+    @property
+    def capacity(self) -> int:
+        """Number of slots C (static)."""
+        return int(self.fitnesses.shape[0])
+
+    @property
+    def num_cells(self) -> int:
+        """Number of slots C; coverage is `num_filled / num_cells` as for cell repertoires."""
+        return self.capacity
+
+    @property
+    def descriptor_dim(self) -> int:
+        """Descriptor dimension D (static)."""
+        return int(self.descriptors.shape[-1])
+
+    def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
+        """`num_samples` genotypes drawn uniformly, with replacement, among the stored ones.
+
+        Sampling an EMPTY container does not fail: it returns NaN in every
+        floating-point leaf (`sample_filled`). Check `is_empty` / `num_filled` first.
+        """
+        return sample_filled(key, self.genotypes, self.filled, num_samples)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
-class CellRepertoire:
+class CellRepertoire(Occupancy):
     """One elite per cell; cells from a regular grid (direct indexing) or from CVT centroids.
 
     Attributes:
@@ -297,21 +352,6 @@ class CellRepertoire:
     def is_grid(self) -> bool:
         """True for a regular grid (direct indexing), False for a CVT archive."""
         return self.grid_shape is not None
-
-    @property
-    def filled(self) -> Array:
-        """(C,) bool, True where a cell holds an elite."""
-        return self.fitnesses > -jnp.inf
-
-    @property
-    def num_filled(self) -> Array:
-        """() int32, number of filled cells."""
-        return jnp.sum(self.filled, dtype=jnp.int32)
-
-    @property
-    def is_empty(self) -> Array:
-        """() bool, True when no cell is filled (then `sample` returns NaN genotypes)."""
-        return self.num_filled == 0
 
     def cell_index(self, descriptors: Descriptor) -> Array:
         """(n,) int32 cell of each descriptor (n, D); out-of-bounds descriptors go to the edge cells.

@@ -29,19 +29,19 @@ import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult
 from qdrl.qd.repertoires.cells import (
+    Slots,
     check_batch,
     init_storage,
-    sample_filled,
     valid_candidates,
     write_rows,
 )
-from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
+from qdrl.types import Array, Descriptor, Fitness, Genotype
 
 __all__ = ["UnstructuredRepertoire", "unstructured_repertoire"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class UnstructuredRepertoire:
+class UnstructuredRepertoire(Slots):
     """Fixed-capacity archive of elites kept at least `l_value` apart in descriptor space.
 
     Attributes:
@@ -57,36 +57,6 @@ class UnstructuredRepertoire:
     fitnesses: Array
     descriptors: Array
     l_value: Array
-
-    @property
-    def capacity(self) -> int:
-        """Number of slots K (static)."""
-        return int(self.fitnesses.shape[0])
-
-    @property
-    def num_cells(self) -> int:
-        """Number of slots K; coverage is `num_filled / num_cells` as for cell repertoires."""
-        return self.capacity
-
-    @property
-    def descriptor_dim(self) -> int:
-        """Descriptor dimension D (static)."""
-        return int(self.descriptors.shape[-1])
-
-    @property
-    def filled(self) -> Array:
-        """(K,) bool, True where a slot holds an elite."""
-        return self.fitnesses > -jnp.inf
-
-    @property
-    def num_filled(self) -> Array:
-        """() int32, number of stored elites."""
-        return jnp.sum(self.filled, dtype=jnp.int32)
-
-    @property
-    def is_empty(self) -> Array:
-        """() bool, True when nothing is stored (then `sample` returns NaN genotypes)."""
-        return self.num_filled == 0
 
     def with_l_value(self, l_value: float | Array) -> UnstructuredRepertoire:
         """The same archive with a new threshold (stored elites are kept as they are)."""
@@ -149,14 +119,6 @@ class UnstructuredRepertoire:
             improvement=improvement.astype(jnp.float32),
             cell=cell.astype(jnp.int32),
         )
-
-    def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
-        """`num_samples` genotypes drawn uniformly, with replacement, among the stored elites.
-
-        Sampling an EMPTY repertoire does not fail: it returns NaN in every
-        floating-point leaf (`sample_filled`). Check `is_empty` / `num_filled` first.
-        """
-        return sample_filled(key, self.genotypes, self.filled, num_samples)
 
 
 jax.tree_util.register_dataclass(
