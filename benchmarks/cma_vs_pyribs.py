@@ -1,4 +1,5 @@
-"""qdrl against pyribs 0.12, side by side: CMA-MAE on the LP sphere 100-D, CMA-MEGA on the LP sphere 1000-D.
+"""qdrl against pyribs 0.12, side by side on the LP sphere: CMA-MAE (100-D), CMA-MEGA (1000-D), and the
+novelty, density and discount-model family (100-D: ns_cma, nslc, nslc_cma_imp, dds, dms, dns).
 
 Alternating runs on one machine (the order flips each seed), each in a fresh process,
 one at a time; each finished run is one JSON line of `--out` and runs already there
@@ -7,6 +8,8 @@ are skipped (the script resumes where it stopped):
     python benchmarks/cma_vs_pyribs.py --ribs-python /path/to/ribs-venv/bin/python --seeds 3 \
         --out benchmarks/results/cma_vs_pyribs.jsonl
     python benchmarks/cma_vs_pyribs.py --table --out benchmarks/results/cma_vs_pyribs.jsonl
+    python benchmarks/cma_vs_pyribs.py --sides qdrl --seeds 5 --algos ns_cma nslc nslc_cma_imp dds dms dns \
+        --out benchmarks/results/novelty_lp_sphere.jsonl
 
 qdrl runs `qdrl run agents/cma_mae_lp_sphere.toml` (or cma_mega_lp_sphere.toml)
 with the seed; pyribs runs `benchmarks/pyribs_lp_sphere.py` with the same settings
@@ -30,7 +33,12 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-CASES = {"cma_mae": "cma_mae_lp_sphere", "cma_mega": "cma_mega_lp_sphere"}
+CASES = {
+    "cma_mae": "cma_mae_lp_sphere", "cma_mega": "cma_mega_lp_sphere",
+    # the novelty, density and discount-model family (pyribs' examples/sphere.py settings)
+    "ns_cma": "ns_cma_lp_sphere", "nslc": "nslc_lp_sphere", "nslc_cma_imp": "nslc_cma_imp_lp_sphere",
+    "dds": "dds_lp_sphere", "dms": "dms_lp_sphere", "dns": "dns_lp_sphere",
+}
 
 
 def _last_json(text: str) -> dict[str, Any]:
@@ -50,7 +58,8 @@ def run_qdrl(algo: str, seed: int, sets: tuple[str, ...] = ()) -> dict[str, Any]
         process_s = time.perf_counter() - t0
         summary = json.loads((Path(tmp) / "run" / "summary.json").read_text())
     return {"normalised_qd_score": summary["normalised_qd_score"], "iterations": summary["iteration"],
-            "loop_s": summary["run_s"], "compile_s": summary["compile_s"], "process_s": process_s,
+            "coverage": summary["coverage"], "loop_s": summary["run_s"], "compile_s": summary["compile_s"],
+            "process_s": process_s, **{k: summary[k] for k in ("cqd_score", "search_size") if k in summary},
             **({"set": list(sets)} if sets else {})}
 
 
@@ -63,13 +72,15 @@ def run_pyribs(python: str, algo: str, seed: int) -> dict[str, Any]:
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
         process_s = time.perf_counter() - t0
         result = _last_json(out.read_text())
-    return {"normalised_qd_score": result["final"]["normalised_qd_score"], "iterations": result["iterations"],
-            "loop_s": result["s_per_iteration"] * result["iterations"], "process_s": process_s}
+    final = result["final"]
+    return {"normalised_qd_score": final["normalised_qd_score"], "iterations": result["iterations"],
+            "loop_s": result["s_per_iteration"] * result["iterations"], "process_s": process_s,
+            **{k: final[k] for k in ("coverage", "search_size") if k in final}}
 
 
 def table(records: list[dict[str, Any]]) -> str:
-    lines = ["| run | library | normalised QD score | loop time (s) | process time (s) | speed-up (loop / process) |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| run | library | normalised QD score | coverage | loop time (s) | process time (s) | speed-up (loop / process) |",
+             "|---|---|---|---|---|---|---|"]
     for algo in CASES:
         means = {}
         for side in ("qdrl", "pyribs"):
@@ -83,14 +94,18 @@ def table(records: list[dict[str, Any]]) -> str:
             if side == "pyribs" and "qdrl" in means:
                 ratio = (f"{means['pyribs']['loop_s'] / means['qdrl']['loop_s']:.1f}x / "
                          f"{means['pyribs']['process_s'] / means['qdrl']['process_s']:.1f}x")
-            lines.append(f"| {algo} | {side} | {statistics.mean(q):.2f} ± {sd:.2f} ({len(q)}) | "
+            cov = [r["coverage"] for r in rs if "coverage" in r]
+            coverage = f"{100 * statistics.mean(cov):.2f}%" if cov else ""
+            lines.append(f"| {algo} | {side} | {statistics.mean(q):.2f} ± {sd:.2f} ({len(q)}) | {coverage} | "
                          f"{means[side]['loop_s']:.1f} | {means[side]['process_s']:.1f} | {ratio} |")
     return "\n".join(lines)
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--ribs-python", required=True, help="python of a virtual environment with ribs 0.12")
+    p.add_argument("--ribs-python", default=None, help="python of a virtual environment with ribs 0.12")
+    p.add_argument("--sides", nargs="+", default=["qdrl", "pyribs"], choices=["qdrl", "pyribs"],
+                   help="run only these libraries (e.g. qdrl alone for more seeds)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--algos", nargs="+", default=list(CASES), choices=list(CASES))
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cma_vs_pyribs.jsonl")
@@ -107,6 +122,10 @@ def main() -> None:
         for algo in args.algos:
             order = ("qdrl", "pyribs") if seed % 2 == 0 else ("pyribs", "qdrl")
             for side in order:
+                if side not in args.sides:
+                    continue
+                if side == "pyribs" and args.ribs_python is None:
+                    p.error("--ribs-python is needed to run pyribs")
                 if any(r["algo"] == algo and r["seed"] == seed and r["side"] == side for r in done):
                     continue
                 load = os.getloadavg()[0]

@@ -94,9 +94,10 @@ from qdrl.qd.emitters.registry import (
     uses_cma_es,
 )
 from qdrl.qd.map_elites import MapElites, qd_state_axes
-from qdrl.qd.metrics import qd_metrics, range_qd_score
+from qdrl.qd.metrics import cqd_score, cqd_target_points, qd_metrics, range_qd_score
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, write_csv
+from qdrl.qd.repertoires.categorical import categorical_archive
 from qdrl.qd.repertoires.cvt import cvt_cells
 from qdrl.qd.repertoires.result import (
     SEARCH_METRICS,
@@ -104,6 +105,7 @@ from qdrl.qd.repertoires.result import (
     result_archive,
     search_archive_metrics,
 )
+from qdrl.qd.repertoires.sliding import sliding_boundaries_archive
 from qdrl.skill_metrics import archive_skill_metrics
 from qdrl.tasks import TASKS, Task
 from qdrl.tasks.brax_features import feature_space
@@ -126,8 +128,15 @@ ThresholdMin = Annotated[float, Range(high=math.inf, high_open=True, finite=Fals
 class RepertoireConfig:
     """The `[repertoire]` section: the container of elites."""
 
-    kind: Literal["grid", "cvt"] = "grid"  # regular grid (direct indexing) or CVT
-    grid_shape: tuple[PositiveInt, ...] = (32, 32)  # grid: cells per descriptor dimension
+    # regular grid (direct indexing), CVT, a grid whose bin edges follow the recent descriptors'
+    # percentiles (sliding boundaries, Fontaine et al. 2019), or one cell per combination of
+    # categories (descriptors are category indices, as pyribs' CategoricalArchive)
+    kind: Literal["grid", "cvt", "sliding", "categorical"] = "grid"
+    grid_shape: tuple[PositiveInt, ...] = (32, 32)  # grid, sliding: cells per descriptor dimension
+    remap_frequency: PositiveInt = 100  # sliding: candidates between two re-placings of the edges
+    buffer_capacity: PositiveInt = 1000  # sliding: recent solutions kept, re-inserted at each re-placing
+    # categorical: the category names of each descriptor dimension, e.g. [["a", "b"], ["x", "y", "z"]]
+    categories: tuple[tuple[str, ...], ...] = ()
     num_centroids: PositiveInt = 1024  # cvt: number of cells
     cvt_samples: PositiveInt = 50_000  # cvt: uniform samples clustered by k-means into centroids
     kmeans_iters: PositiveInt = 50  # cvt: at most this many Lloyd iterations (after k-means++ seeding)
@@ -138,8 +147,9 @@ class RepertoireConfig:
     # from the elites move towards accepted fitnesses; 1 with threshold_min = -inf: plain MAP-Elites.
     learning_rate: UnitFloat = 1.0
     threshold_min: ThresholdMin = -math.inf  # the thresholds' start value (CMA-MAE: the lowest fitness)
-    # [min, max] fitness: the repertoire plots' colour scale, and the metric `range_qd_score`
+    # [min, max] fitness: the repertoire plots' colour scale, and the metrics `range_qd_score`
     # (`qdrl.qd.metrics.range_qd_score`: fitnesses clipped to the range, scaled to [0, 1], per cell)
+    # and `cqd_score` (`range_cqd_score`, at each log point)
     fitness_range: tuple[float, float] | None = None
 
     def check(self) -> None:
@@ -154,6 +164,13 @@ class RepertoireConfig:
                 f"repertoire.cvt_samples: expected at least repertoire.num_centroids="
                 f"{self.num_centroids}, got {self.cvt_samples}"
             )
+        if self.kind == "categorical" and not (self.categories and all(self.categories)):
+            raise ValueError(
+                "repertoire.categories: expected a list of category names per descriptor dimension, "
+                f"got {[list(c) for c in self.categories]}"
+            )
+        if self.kind in ("sliding", "categorical") and self.annealed:
+            raise ValueError(f"repertoire.learning_rate: a {self.kind} repertoire keeps no thresholds; expected 1")
         if self.threshold_min == -math.inf and self.learning_rate < 1.0:
             raise ValueError(
                 "repertoire.threshold_min: expected a finite number when repertoire.learning_rate "
@@ -545,10 +562,15 @@ def _parse(
 def check_repertoire(repertoire: RepertoireConfig, task: Task) -> None:
     """Refuses a grid of another dimension than the task's descriptor."""
     dim = task.descriptor_size
-    if repertoire.kind == "grid" and len(repertoire.grid_shape) != dim:
+    if repertoire.kind in ("grid", "sliding") and len(repertoire.grid_shape) != dim:
         raise ConfigError(
             f"repertoire.grid_shape: expected {dim} entries (the descriptor size of task "
             f"{task.name!r}), got {list(repertoire.grid_shape)}"
+        )
+    if repertoire.kind == "categorical" and len(repertoire.categories) != dim:
+        raise ConfigError(
+            f"repertoire.categories: expected {dim} lists (the descriptor size of task {task.name!r}), "
+            f"got {len(repertoire.categories)}"
         )
 
 
@@ -558,6 +580,13 @@ def make_repertoire(config: RepertoireConfig, task: Task, example: Any, seed: in
     run's `seed` (`cvt_cells`)."""
     if config.kind == "grid":
         rep = grid_repertoire(example, config.grid_shape, task.descriptor_low, task.descriptor_high)
+    elif config.kind == "sliding":
+        return sliding_boundaries_archive(
+            example, config.grid_shape, task.descriptor_low, task.descriptor_high, config.remap_frequency,
+            config.buffer_capacity,
+        )
+    elif config.kind == "categorical":
+        return categorical_archive(example, config.categories)
     else:
         if centroids is None:
             seed = config.cvt_seed if config.cvt_seed is not None else seed
@@ -590,7 +619,7 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
         "env_steps": int(state.env_steps),
     }
     row.update(last_values(m, QD_METRICS))
-    for extra in ("range_qd_score", *SEARCH_METRICS):  # repertoire.fitness_range, [search_archive]
+    for extra in ("range_qd_score", "cqd_score", *SEARCH_METRICS):  # repertoire.fitness_range, [search_archive]
         if extra in m:
             row.update(last_values(m, (extra,)))
     row["added_per_iter"] = float(np.mean(m["added"]))
@@ -617,13 +646,35 @@ def plot_repertoire(
         )
 
 
+# The CQD score's fixed draws (pyribs' cqd_score example): 5 draws of 200 target points uniform
+# in the descriptor box, from one key for every run, and 5 penalties over [0, 1].
+CQD_DRAWS, CQD_TARGETS, CQD_PENALTIES, CQD_KEY = 5, 200, 5, 42
+
+
+def range_cqd_score(
+    repertoire: Any, fitness_range: tuple[float, float], low: Any, high: Any
+) -> Array:
+    """The CQD score (`qdrl.qd.metrics.cqd_score`) of a repertoire's elites on the scale of
+    `fitness_range` (fitnesses minus its min, on its width), at the target points every run on
+    the descriptor box [low, high] shares (CQD_DRAWS draws of CQD_TARGETS, CQD_PENALTIES
+    penalties, distances on the box's diagonal); jittable."""
+    lo, hi = fitness_range
+    low, high = jnp.asarray(low, jnp.float32), jnp.asarray(high, jnp.float32)
+    targets = cqd_target_points(jax.random.PRNGKey(CQD_KEY), low, high, CQD_TARGETS, CQD_DRAWS)
+    rep = result_archive(repertoire)
+    return cqd_score(
+        rep.descriptors, rep.fitnesses - lo, targets, CQD_PENALTIES, 0.0, hi - lo, jnp.linalg.norm(high - low),
+    )
+
+
 def with_range_score(
     repertoire: Any, qd_offset: float, fitness_range: tuple[float, float] | None = None,
     space: SkillSpace | None = None,
 ) -> dict[str, Array]:
     """`qd_metrics`, the QD score on the scale of `fitness_range` (`range_qd_score`) when given,
-    and on a feature task (`space`) the repertoire read as a library of skills
-    (`archive_skill_metrics`, as every skill method there logs it); jittable."""
+    a search archive's own figures (`search_archive_metrics`), and on a feature task (`space`)
+    the repertoire read as a library of skills (`archive_skill_metrics`, as every skill method
+    there logs it); jittable."""
     out = qd_metrics(repertoire, qd_offset)
     if isinstance(repertoire, ResultArchived):
         out.update(search_archive_metrics(repertoire.search))
@@ -718,6 +769,16 @@ def _build(
         else:
             plot_repertoire(rep, out_dir, task, title, rows, rep_cfg.fitness_range)
 
+    def chunk(state: Any) -> tuple[Any, dict[str, Any]]:
+        """`qd.log_every` iterations; with `repertoire.fitness_range`, the CQD score at the end
+        (once per log point: it compares every elite with 1,000 target points)."""
+        state, metrics = map_elites().run(state, qd.log_every)
+        if rep_cfg.fitness_range is not None and container is None:
+            metrics = {**metrics, "cqd_score": range_cqd_score(
+                state.repertoire, rep_cfg.fitness_range, task.descriptor_low, task.descriptor_high,
+            )}
+        return state, metrics
+
     cells = None
     if rep_cfg.kind == "cvt" and ctx.centroids is None:
         what = f"computing {rep_cfg.num_centroids:,} CVT cells (k-means of {rep_cfg.cvt_samples:,} samples)"
@@ -731,7 +792,7 @@ def _build(
             source.progress_keys if container is None else container.progress_keys, "iteration", qd.num_iterations
         ),
         init=init,
-        chunk=lambda state: map_elites().run(state, qd.log_every),
+        chunk=chunk,
         log_row=log_row,
         finish=finish,
         plot=plot,

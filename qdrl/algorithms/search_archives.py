@@ -71,9 +71,11 @@ class ProximityConfig:
     k_neighbors: PositiveInt = 15  # novelty: mean distance to this many nearest members
     novelty_threshold: PositiveFloat = 1.0  # a candidate at least this novel enters
     local_competition: bool = False  # NSLC: a fitter non-novel candidate replaces its nearest
-    threshold_decay: PositiveUnitFloat = 1.0  # the threshold's factor every `decay_every` iterations
-    decay_every: PositiveInt = 1
-    threshold_min: NonNegativeFloat = 0.0  # the decayed threshold's floor
+    # pyribs' names: the threshold is multiplied by `threshold_decay_rate` every
+    # `threshold_decay_itrs` iterations, down to `threshold_decay_min` (rate 1: no decay)
+    threshold_decay_rate: PositiveUnitFloat = 1.0
+    threshold_decay_itrs: PositiveInt = 1
+    threshold_decay_min: NonNegativeFloat = 0.0
     parents: Parents = "search"  # where emitters draw parents and restart points
 
 
@@ -190,8 +192,8 @@ def make_search_archive(config: Any, task: Task, example: Any, result: Any, seed
     if isinstance(config, ProximityConfig):
         search = proximity_archive(
             example, config.capacity, dim, config.k_neighbors, config.novelty_threshold,
-            local_competition=config.local_competition, threshold_decay=config.threshold_decay,
-            decay_every=config.decay_every, threshold_min=config.threshold_min,
+            local_competition=config.local_competition, threshold_decay=config.threshold_decay_rate,
+            decay_every=config.threshold_decay_itrs, threshold_min=config.threshold_decay_min,
         )
     elif isinstance(config, DNSConfig):
         search = dns_population(example, config.capacity, dim, config.k, tie_rule=config.tie_rule)
