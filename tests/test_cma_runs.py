@@ -34,7 +34,12 @@ SPECS = sorted(
 # One spec of each kind of state runs in the default suite (an archive with thresholds and
 # CMA-ES instances, a bandit pool with a GA, CMA-MEGA, OMG-MEGA's stored gradients); the
 # others compile programs of their own (20-30 s each on a loaded 2-core machine): -m slow.
-DEFAULT = {"cma_mae_lp_sphere", "me_map_elites_lp_sphere", "cma_mega_lp_sphere", "omg_mega_lp_sphere"}
+DEFAULT = {
+    "cma_mae_lp_sphere", "me_map_elites_lp_sphere", "cma_mega_lp_sphere", "omg_mega_lp_sphere",
+    # search archives beside a result archive: NSLC's proximity archive, DMS's discount model and
+    # its optimiser, DNS's population
+    "nslc_lp_sphere", "dms_lp_sphere", "dns_lp_sphere_cpu",
+}
 PARAMS = [pytest.param(p, id=p.stem, marks=() if p.stem in DEFAULT else pytest.mark.slow) for p in SPECS]
 
 
@@ -91,6 +96,9 @@ def test_a_tiny_run_of_each_spec_resumes_bit_identically(path: Path, tmp_path: P
         assert list(rows.columns).index("normalised_qd_score") == list(rows.columns).index("qd_score") + 1
         assert summary["normalised_qd_score"] == pytest.approx(summary["qd_score"] / 64, rel=1e-5)
         keys = ("qd_score", "normalised_qd_score", "coverage", "num_elites", "evaluations")
+        if "search_archive" in load_toml(path):  # the search archive's own figures, and the CQD score
+            assert summary["search_size"] > 0 and math.isfinite(summary["cqd_score"])
+            keys = (*keys, "search_size", "cqd_score", *(k for k in ("discount_loss",) if k in summary))
         if "restarts" in summary:  # CMA-ES instances (all but MAP-Elites and OMG-MEGA)
             keys = (*keys, "restarts")
     assert len(rows) == 2
@@ -113,7 +121,7 @@ def _spec(name: str, **sections: dict[str, Any]) -> dict[str, Any]:
         ("cma_mae_lp_sphere", "repertoire", {"learning_rate": -0.1}, "repertoire.learning_rate: expected a number in [0, 1], got -0.1"),
         ("cma_mae_lp_sphere", "repertoire", {"threshold_min": -math.inf},
          "repertoire.threshold_min: expected a finite number when repertoire.learning_rate < 1 (CMA-MAE), got -inf"),
-        ("cma_me_lp_sphere", "emitter", {"ranker": "3imp"}, "emitter.ranker: expected one of ['2imp', '2obj', '2rd', 'imp', 'obj', 'rd'] or nothing (omit the key), got '3imp'"),
+        ("cma_me_lp_sphere", "emitter", {"ranker": "3imp"}, "emitter.ranker: expected one of ['2imp', '2obj', '2rd', 'density', 'imp', 'nov', 'nslc', 'obj', 'rd'] or nothing (omit the key), got '3imp'"),
         ("cma_me_lp_sphere", "emitter", {"kind": "isoline"},
          "emitter.kind: expected one of ['cma_improvement', 'cma_optimizing', 'cma_random_direction'], got 'isoline'"),
         ("map_elites_lp_sphere", "emitter", {"kind": "cma_evolution"}, "emitter.kind: expected one of ['cma_improvement', 'cma_mega', "),
@@ -127,6 +135,19 @@ def _spec(name: str, **sections: dict[str, Any]) -> dict[str, Any]:
         ("cma_es_sphere", "cma_es", {"eigen_gap": 0},
          "cma_es.eigen_gap: expected a positive integer or one of 'generations', 'evaluations', got 0"),
         ("cma_es_sphere", "cma_es", {"population_size": 1}, "cma_es.population_size: expected 0 (the default) or an integer >= 2, got 1"),
+        # the search archives' keys
+        ("nslc_lp_sphere", "search_archive", {"novelty_threshold": 0.0}, "search_archive.novelty_threshold: expected a number > 0, got 0.0"),
+        ("nslc_lp_sphere", "search_archive", {"k_neighbors": 0}, "search_archive.k_neighbors: expected a positive integer, got 0"),
+        ("nslc_lp_sphere", "search_archive", {"capacity": 4}, "search_archive.capacity: expected at least the 8 offspring of an iteration, got 4"),
+        ("nslc_lp_sphere", "search_archive", {"threshold_decay_rate": 0.0}, "search_archive.threshold_decay_rate: expected a number in (0, 1], got 0.0"),
+        ("dns_lp_sphere", "search_archive", {"k": 0}, "search_archive.k: expected a positive integer, got 0"),
+        ("dns_lp_sphere", "search_archive", {"tie_rule": "pyribs"}, "search_archive.tie_rule: expected one of 'qdax', 'strict', got 'pyribs'"),
+        ("dds_lp_sphere", "search_archive", {"bandwidth": 0.0}, "search_archive.bandwidth: expected a number > 0, got 0.0"),
+        ("dds_lp_sphere", "search_archive", {"kind": "kde"}, "search_archive.kind: expected one of ['density', 'discount', 'dns', 'proximity'], got 'kde'"),
+        ("dms_lp_sphere", "search_archive", {"learning_rate": 0.0}, "search_archive.learning_rate: expected a number in (0, 1], got 0.0"),
+        ("dms_lp_sphere", "search_archive", {"discount_range": [1.0, 0.0]}, "search_archive.discount_range: expected [lo, hi] with lo < hi, got [1.0, 0.0]"),
+        ("cma_me_lp_sphere", "emitter", {"ranker": "nslc"}, "emitter.ranker: 'nslc' ranks by the 'novelty' that a proximity archive gives"),
+        ("dds_lp_sphere", "emitter", {"ranker": "nov"}, "emitter.ranker: 'nov' ranks by the 'novelty' that a proximity archive gives"),
     ],
 )
 def test_bad_values_are_refused_before_anything_is_built(
