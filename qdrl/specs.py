@@ -11,7 +11,8 @@ directory beside the `qdrl` package is used instead.
 
 Folders of packaged specs: `seed_benchmark/` (the skill-discovery benchmark of Chalumeau,
 Boige et al. 2023, one spec per algorithm and task), `metra_baselines/` (DIAYN and DADS at
-METRA's 2-core settings, for the `metra_cpu` suite) and `suites/` (suite files, `qdrl suite`).
+METRA's 2-core settings, for the `metra_cpu` suite), `dns_baselines/` (MAP-Elites at the settings of
+the DNS comparison, for the `dns_walker2d` suite) and `suites/` (suite files, `qdrl suite`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from qdrl.config import ConfigError, apply_overrides, load_toml
 __all__ = ["SPEC_FOLDERS", "describe", "resolve", "spec_dir", "spec_names"]
 
 # The folders of packaged specs whose files `resolve` finds as "<folder>/<name>".
-SPEC_FOLDERS = ("seed_benchmark", "metra_baselines")
+SPEC_FOLDERS = ("seed_benchmark", "metra_baselines", "dns_baselines")
 
 
 def spec_dir() -> Path | None:
