@@ -69,7 +69,7 @@ def test_the_wheel_maps_agents_into_the_package() -> None:
     tool = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     assert tool["package-dir"] == {"qdrl._specs": "agents"}
     assert tool["package-data"]["qdrl._specs"] == [
-        "*.toml", "seed_benchmark/*.toml", "metra_baselines/*.toml", "suites/*.toml"
+        "*.toml", "seed_benchmark/*.toml", "metra_baselines/*.toml", "dns_baselines/*.toml", "suites/*.toml"
     ]
     assert "qdrl._specs" in (ROOT / "setup.py").read_text()
     assert (ROOT / "agents" / "__init__.py").is_file()

@@ -632,13 +632,24 @@ def plot_repertoire(
     fitness_range: tuple[float, float] | None = None,
 ) -> None:
     """A QD run's final repertoire drawn into plots/repertoire.png (on the colour scale
-    `fitness_range` when given); with the run's `rows`, also the one-figure summary
-    plots/summary.png (QD score, coverage, max fitness, repertoire)."""
+    `fitness_range` when given), the histogram and empirical CDF of its elites' fitnesses
+    (plots/fitness_histogram.png, plots/fitness_ecdf.png), with descriptors of more than two
+    dimensions their parallel axes (plots/parallel_axes.png); with the run's `rows`, also the
+    one-figure summary plots/summary.png (QD score, coverage, max fitness, repertoire)."""
     vmin, vmax = fitness_range if fitness_range is not None else (None, None)
+    plots = out_dir / "plots"
     plotting.plot_repertoire(
-        rep, out_dir / "plots" / "repertoire.png", task.descriptor_low, task.descriptor_high,
+        rep, plots / "repertoire.png", task.descriptor_low, task.descriptor_high,
         title=title, labels=task.descriptor_names, vmin=vmin, vmax=vmax,
     )
+    fitnesses = np.asarray(rep.fitnesses)
+    plotting.plot_fitness_histogram(fitnesses, plots / "fitness_histogram.png", title=f"{title}: elites' fitness")
+    plotting.plot_fitness_ecdf({title: [fitnesses]}, plots / "fitness_ecdf.png", title=f"{title}: fitness ECDF")
+    if task.descriptor_size > 2:
+        plotting.plot_parallel_axes(
+            rep, plots / "parallel_axes.png", task.descriptor_low, task.descriptor_high,
+            labels=task.descriptor_names, title=title,
+        )
     if rows:
         plotting.plot_qd_summary(
             rows, rep, out_dir / "plots" / "summary.png", task.descriptor_low, task.descriptor_high,
