@@ -48,7 +48,9 @@ def _last_json(text: str) -> dict[str, Any]:
     raise ValueError(f"no JSON line in {text[-300:]!r}")
 
 
-def run_qdrl(algo: str, seed: int, sets: tuple[str, ...] = ()) -> dict[str, Any]:
+def run_qdrl(algo: str, seed: int, sets: tuple[str, ...] = (), iterations: int | None = None) -> dict[str, Any]:
+    if iterations is not None:
+        sets = (*sets, f"qd.num_iterations={iterations}", f"qd.log_every={min(iterations, 500)}")
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "qdrl.cli", "run", str(ROOT / "agents" / f"{CASES[algo]}.toml"),
                "--set", f"experiment.seed={seed}", *(a for x in sets for a in ("--set", x)),
@@ -63,11 +65,13 @@ def run_qdrl(algo: str, seed: int, sets: tuple[str, ...] = ()) -> dict[str, Any]
             **({"set": list(sets)} if sets else {})}
 
 
-def run_pyribs(python: str, algo: str, seed: int) -> dict[str, Any]:
+def run_pyribs(python: str, algo: str, seed: int, iterations: int | None = None) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "r.jsonl"
         cmd = [python, str(ROOT / "benchmarks" / "pyribs_lp_sphere.py"), "--algo", algo, "--seed", str(seed),
                "--budget", "1e9", "--out", str(out)]
+        if iterations is not None:
+            cmd += ["--max-iterations", str(iterations), "--log-every", str(min(iterations, 250))]
         t0 = time.perf_counter()
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
         process_s = time.perf_counter() - t0
@@ -111,6 +115,7 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "cma_vs_pyribs.jsonl")
     p.add_argument("--set", action="append", default=[],
                    help="a --set override for qdrl's runs (e.g. emitter.eigen_gap=evaluations)")
+    p.add_argument("--iterations", type=int, default=None, help="both libraries' run length (default: the spec's)")
     p.add_argument("--table", action="store_true")
     args = p.parse_args()
     done = [json.loads(line) for line in args.out.read_text().splitlines()] if args.out.exists() else []
@@ -129,8 +134,8 @@ def main() -> None:
                 if any(r["algo"] == algo and r["seed"] == seed and r["side"] == side for r in done):
                     continue
                 load = os.getloadavg()[0]
-                rec = (run_qdrl(algo, seed, tuple(args.set)) if side == "qdrl"
-                       else run_pyribs(args.ribs_python, algo, seed))
+                rec = (run_qdrl(algo, seed, tuple(args.set), args.iterations) if side == "qdrl"
+                       else run_pyribs(args.ribs_python, algo, seed, args.iterations))
                 rec.update(algo=algo, seed=seed, side=side, load_before=load, load_after=os.getloadavg()[0],
                            env=env_note)
                 done.append(rec)

@@ -754,7 +754,15 @@ def _build(
 
     def init(key: jax.Array) -> Any:
         _, init_key, run_key = jax.random.split(key, 3)
-        return map_elites().init(genotypes(init_key), run_key)
+        state = map_elites().init(genotypes(init_key), run_key)
+        if search_cfg is not None and qd.initial_genotypes == "zeros":
+            # x0 = 0 is where the emitters start (pyribs' x0), not a solution of the search: the
+            # search archive starts empty (the result archive keeps x0's evaluation), so a
+            # novelty search's first batch is judged as pyribs judges it, against nothing.
+            rep: Any = state.repertoire
+            empty: Any = map_elites().empty_repertoire
+            state = state._replace(repertoire=dataclasses.replace(rep, search=empty.search))
+        return state
 
     def log_row(state: Any, metrics: Any) -> Row:
         if container is not None:

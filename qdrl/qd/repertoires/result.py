@@ -106,8 +106,13 @@ class ResultArchived:
         return dataclasses.replace(self, search=search, result=result), added
 
     def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
-        """`num_samples` parents drawn from the archive `parents` names."""
-        return self._parents.sample(key, num_samples)
+        """`num_samples` parents drawn from the archive `parents` names; from the result archive
+        while a search archive that should give them is still empty."""
+        if self.parents == "result":
+            return self.result.sample(key, num_samples)
+        search, result = self.search.sample(key, num_samples), self.result.sample(key, num_samples)
+        empty = self.search.is_empty
+        return jax.tree.map(lambda a, b: jnp.where(empty, b, a), search, result)
 
 
 jax.tree_util.register_dataclass(ResultArchived, data_fields=["search", "result"], meta_fields=["parents"])
