@@ -74,3 +74,25 @@ def test_the_runs_cqd_score_is_pyribs_formula_at_the_shared_targets() -> None:
     want = float(cqd_score(d, jnp.array([10.0, 50.0]), targets, 5, 0.0, 100.0, float(np.sqrt(2.0))))
     assert got == pytest.approx(want, rel=1e-5)
     assert 0.0 < got < 5 * 200 * 0.5
+
+
+def test_sliding_and_categorical_repertoires_are_spec_kinds(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from qdrl.config import ConfigError
+    from qdrl.experiment import build_run, check_spec, run
+
+    spec = {
+        "experiment": {"algorithm": "map_elites"},
+        "task": {"name": "lp_sphere", "num_dims": 6},
+        "repertoire": {"kind": "sliding", "grid_shape": [8, 8], "remap_frequency": 20, "buffer_capacity": 40},
+        "emitter": {"kind": "isoline", "batch_size": 16, "iso_sigma": 0.5, "line_sigma": 0.2},
+        "qd": {"num_iterations": 4, "log_every": 2, "init_batch_size": 16},
+        "log": {"progress": False, "plots": False},
+    }
+    summary = run(spec, Path(str(tmp_path)) / "sliding")
+    assert summary["iteration"] == 4 and 0 < summary["num_elites"] <= 64
+    with pytest.raises(ConfigError, match=r"repertoire\.categories: expected 2 lists"):
+        build_run({**spec, "repertoire": {"kind": "categorical", "categories": [["a", "b"]]}})
+    with pytest.raises(ConfigError, match=r"repertoire\.categories: expected a list of category names"):
+        check_spec({**spec, "repertoire": {"kind": "categorical"}})
