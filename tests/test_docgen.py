@@ -21,11 +21,15 @@ MARKER = re.compile(r"<!-- keys (\S+):(\S+) (\S+) -->")
 def test_a_key_table_gives_each_key_its_default_what_it_accepts_and_its_comment() -> None:
     table = docgen.keys_table(RepertoireConfig, "repertoire").splitlines()
     assert table[0] == "| key | default | accepts | meaning |"
-    assert "| `repertoire.kind` | `\"grid\"` | one of 'grid', 'cvt' | regular grid (direct indexing) or CVT |" in table
+    kind = next(line for line in table if line.startswith("| `repertoire.kind` |"))
+    # a comment of several lines above the key is its meaning
+    assert kind.startswith("| `repertoire.kind` | `\"grid\"` | one of 'grid', 'cvt', 'sliding', 'categorical' | regular grid")
+    assert kind.endswith("as pyribs' CategoricalArchive) |")
     assert "| `repertoire.grid_shape` | `[32, 32]` | a list of positive integers |" in table[3]
-    assert len(table) == 2 + 9  # with cvt_seed, CMA-MAE's learning_rate and threshold_min, fitness_range
-    assert table[8].startswith("| `repertoire.learning_rate` | `1.0` |")
-    assert table[7].startswith("| `repertoire.cvt_seed` | (none) | an integer >= 0 or nothing")
+    # with sliding's and categorical's keys, cvt_seed, CMA-MAE's learning_rate and threshold_min, fitness_range
+    assert len(table) == 2 + 12
+    assert table[11].startswith("| `repertoire.learning_rate` | `1.0` |")
+    assert table[10].startswith("| `repertoire.cvt_seed` | (none) | an integer >= 0 or nothing")
     train = docgen.keys_table(TrainConfig, "train")
     assert "| `train.learning_starts` | `10000` | an integer >= 0 |" in train
 
