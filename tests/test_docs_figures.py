@@ -35,6 +35,9 @@ RUN_TIME_OUTPUTS = {
     "plots/population.png",  # qdrl run of PBT: the population's members
     "plots/skills.png",  # qdrl run of a skill-discovery agent: each skill's trajectories
     "plots/profiles.png",  # qdrl run of QDAC or UVFA: distance and performance profiles
+    "plots/fitness_histogram.png",  # qdrl run of a QD algorithm: its elites' fitnesses
+    "plots/fitness_ecdf.png",  # the same as an empirical CDF
+    "plots/parallel_axes.png",  # the same for descriptors of more than two dimensions
     "plots/replay_skills.png",  # qdrl render RUN: every skill's path
     "plots/replay_skill3.png",  # qdrl render RUN --skill 3
     "plots/replay_agent.png",  # qdrl render RUN of an RL agent: its first evaluation episode

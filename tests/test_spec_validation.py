@@ -265,6 +265,8 @@ ANY_FINITE_NUMBER = {
     ("archive", "fitness_range"), ("repertoire", "fitness_range"),  # a return range, either sign (min < max checked)
     ("evaluation", "return_range"),  # the same for feature-space skills' profiles
     ("uvfa", "extrinsic_scale"),  # a reward weight, either sign
+    # DMS's discount of unexplored regions and its fitness range: fitness values, either sign
+    ("search_archive", "threshold_min"), ("search_archive", "discount_range"),
 }
 
 
