@@ -96,3 +96,27 @@ def test_sliding_and_categorical_repertoires_are_spec_kinds(tmp_path: object) ->
         build_run({**spec, "repertoire": {"kind": "categorical", "categories": [["a", "b"]]}})
     with pytest.raises(ConfigError, match=r"repertoire\.categories: expected a list of category names"):
         check_spec({**spec, "repertoire": {"kind": "categorical"}})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["dns_walker2d_uni", "dns_baselines/map_elites_walker2d_uni"])
+def test_the_dns_comparison_specs_run_a_tiny_version(tmp_path: object, name: str) -> None:
+    """DNS on walker2d_uni and its MAP-Elites baseline, shrunk (10-step episodes, 8 offspring,
+    2 log points): both read a CVT result archive of the same cells."""
+    from pathlib import Path
+
+    from qdrl import specs
+    from qdrl.config import load_toml
+    from qdrl.experiment import run
+
+    spec = load_toml(specs.resolve(name))
+    spec["task"].update(episode_length=10)
+    spec["repertoire"].update(num_centroids=16, cvt_samples=1000)
+    spec["emitter"]["batch_size"] = 8
+    spec["qd"].update(num_iterations=4, log_every=2, init_batch_size=8)
+    if "search_archive" in spec:
+        spec["search_archive"]["capacity"] = 8
+    spec["log"] = {"progress": False, "plots": False}
+    summary = run(spec, Path(str(tmp_path)) / "run")
+    assert summary["iteration"] == 4 and summary["num_elites"] > 0
+    assert ("search_size" in summary) == ("search_archive" in spec)
