@@ -44,7 +44,7 @@ from qdrl.qd.repertoires.density import density_archive
 from qdrl.qd.repertoires.discount import discount_archive
 from qdrl.qd.repertoires.dns import dns_population
 from qdrl.qd.repertoires.proximity import proximity_archive
-from qdrl.qd.repertoires.result import ResultArchived, with_result_archive
+from qdrl.qd.repertoires.result import Parents, ResultArchived, with_result_archive
 from qdrl.tasks import Task
 
 __all__ = [
@@ -58,8 +58,6 @@ __all__ = [
     "make_search_archive",
     "parse_search_archive",
 ]
-
-Parents = Literal["search", "result"]
 
 
 @dataclasses.dataclass(frozen=True)

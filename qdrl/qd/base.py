@@ -110,6 +110,25 @@ class Emitter(Protocol):
         ...
 
 
+def add_evaluation(repertoire: Any, genotypes: Genotype, evaluation: Evaluation) -> tuple[Any, AddResult]:
+    """`repertoire.add(genotypes, descriptors, fitnesses)` of an evaluated batch; a repertoire that
+    reads more of the evaluation than its fitnesses and descriptors (AURORA's observations, the
+    samples of a candidate evaluated several times) defines `add_evaluation(genotypes,
+    evaluation)`, which is then called instead."""
+    add = getattr(repertoire, "add_evaluation", None)
+    if add is not None:
+        return add(genotypes, evaluation)  # type: ignore[no-any-return]
+    return repertoire.add(genotypes, evaluation.descriptors, evaluation.fitnesses)  # type: ignore[no-any-return]
+
+
+def evaluation_descriptor_size(repertoire: Any) -> int:
+    """The width D of the descriptors a scoring function gives the repertoire: its stored
+    descriptors' unless it declares `evaluation_descriptor_size` (AURORA stores learnt codes
+    of another width than the task's hand-made descriptor, which its result archive reads)."""
+    size = getattr(repertoire, "evaluation_descriptor_size", None)
+    return int(repertoire.descriptors.shape[-1]) if size is None else int(size)
+
+
 @runtime_checkable
 class ReportsMetrics(Protocol):
     """An emitter that reports counters of its state on each log row (a critic's steps, restarts)."""

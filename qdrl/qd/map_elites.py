@@ -29,7 +29,16 @@ import jax.numpy as jnp
 from jax.sharding import PartitionSpec as P
 
 from qdrl.placement import BATCH_AXIS, Placement
-from qdrl.qd.base import TIME_MAJOR_EXTRAS, AddResult, Emitter, Evaluation, Repertoire, ScoringFn
+from qdrl.qd.base import (
+    TIME_MAJOR_EXTRAS,
+    AddResult,
+    Emitter,
+    Evaluation,
+    Repertoire,
+    ScoringFn,
+    add_evaluation,
+    evaluation_descriptor_size,
+)
 from qdrl.qd.metrics import qd_metrics
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
@@ -220,7 +229,7 @@ class MapElites:
         self.empty_repertoire = repertoire
         self.qd_offset = qd_offset
         self.metrics_fn = metrics_fn
-        self.descriptor_size = int(repertoire.descriptors.shape[-1])
+        self.descriptor_size = evaluation_descriptor_size(repertoire)
         # Multi-objective containers (MOME, Pareto populations) declare M: fitnesses are (n, M).
         self.num_objectives: int | None = getattr(repertoire, "num_objectives", None)
 
@@ -248,9 +257,7 @@ class MapElites:
         _check_some_finite(n, evaluation)
         emitter_key, key = jax.random.split(key)
         genotypes, evaluation = self.placement.replicated((genotypes, evaluation))
-        repertoire, _ = self.empty_repertoire.add(
-            genotypes, evaluation.descriptors, evaluation.fitnesses
-        )
+        repertoire, _ = add_evaluation(self.empty_repertoire, genotypes, evaluation)
         emitter_state = self.emitter.init(emitter_key, repertoire, evaluation, genotypes)
         return self._replicated(QDState(
             repertoire=repertoire,
@@ -312,9 +319,7 @@ class MapElites:
         )
         key, update_key = jax.random.split(state.key)
         genotypes, evaluation = self.placement.replicated((genotypes, evaluation))
-        repertoire, added = state.repertoire.add(
-            genotypes, evaluation.descriptors, evaluation.fitnesses
-        )
+        repertoire, added = add_evaluation(state.repertoire, genotypes, evaluation)
         emitter_state = self.emitter.update(
             state.emitter_state, repertoire, genotypes, evaluation, added, update_key
         )

@@ -25,7 +25,7 @@ from typing import Any, Literal
 import jax
 import jax.numpy as jnp
 
-from qdrl.qd.base import AddResult
+from qdrl.qd.base import AddResult, Evaluation, add_evaluation
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
 __all__ = [
@@ -105,14 +105,23 @@ class ResultArchived:
         result, _ = self.result.add(genotypes, descriptors, fitnesses)
         return dataclasses.replace(self, search=search, result=result), added
 
+    def add_evaluation(self, genotypes: Genotype, evaluation: Evaluation) -> tuple[ResultArchived, AddResult]:
+        """`add`, the search archive reading the whole evaluation when it asks for it
+        (`qdrl.qd.base.add_evaluation`: AURORA encodes the evaluation's observations)."""
+        search, added = add_evaluation(self.search, genotypes, evaluation)
+        result, _ = self.result.add(genotypes, evaluation.descriptors, evaluation.fitnesses)
+        return dataclasses.replace(self, search=search, result=result), added
+
     def sample(self, key: PRNGKey, num_samples: int) -> Genotype:
         """`num_samples` parents drawn from the archive `parents` names; from the result archive
         while a search archive that should give them is still empty."""
         if self.parents == "result":
             return self.result.sample(key, num_samples)
-        search, result = self.search.sample(key, num_samples), self.result.sample(key, num_samples)
-        empty = self.search.is_empty
-        return jax.tree.map(lambda a, b: jnp.where(empty, b, a), search, result)
+        return jax.lax.cond(
+            jnp.asarray(self.search.is_empty),
+            lambda: self.result.sample(key, num_samples),
+            lambda: self.search.sample(key, num_samples),
+        )
 
 
 jax.tree_util.register_dataclass(ResultArchived, data_fields=["search", "result"], meta_fields=["parents"])
