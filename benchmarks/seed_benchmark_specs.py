@@ -36,7 +36,9 @@ TASKS: dict[str, dict[str, Any]] = {
     "ant_maze": {"episode": 500, "reward_scale": 1.0, "diversity": 3.0, "smerl": (-6820.0, 682.0), "range": (-20000.0, 0.0), "full_state": False},
     "point_maze": {"episode": 250, "reward_scale": 1.0, "diversity": 2.0, "smerl": (-66.0, 6.6), "range": (-1000.0, 0.0), "full_state": False},
 }
-QD = ("map_elites", "pga_me")
+QD = ("map_elites", "pga_me", "aurora", "pga_aurora")
+# The QD methods built on PGA-ME's emitters (their batch is its environment batch).
+PG = ("pga_me", "pga_aurora")
 # name -> (qdrl algorithm, skill model, SMERL, task reward added)
 SKILLS: dict[str, tuple[str, str, bool, bool]] = {
     "diayn": ("diayn", "diayn", False, False),
@@ -48,12 +50,14 @@ SKILLS: dict[str, tuple[str, str, bool, bool]] = {
 }
 ALGORITHMS: tuple[str, ...] = (*QD, *SKILLS)
 DESCRIPTION = {
-    "map_elites": "MAP-Elites", "pga_me": "PGA-ME", "diayn": "DIAYN", "dads": "DADS",
+    "map_elites": "MAP-Elites", "pga_me": "PGA-ME", "aurora": "AURORA", "pga_aurora": "PGA-AURORA",
+    "diayn": "DIAYN", "dads": "DADS",
     "smerl_diayn": "DIAYN-SMERL", "smerl_dads": "DADS-SMERL", "diayn_reward": "DIAYN+reward",
     "dads_reward": "DADS+reward",
 }
 STUDY_CONFIG = {  # the study's config folder of each algorithm (pure DIAYN/DADS: +reward's, reward off)
-    "map_elites": "map_elites", "pga_me": "pga_me", "diayn": "diayn_reward", "dads": "dads_reward",
+    "map_elites": "map_elites", "pga_me": "pga_me", "aurora": "aurora", "pga_aurora": "pga_aurora",
+    "diayn": "diayn_reward", "dads": "dads_reward",
     "smerl_diayn": "diayn_smerl", "smerl_dads": "dads_smerl", "diayn_reward": "diayn_reward",
     "dads_reward": "dads_reward",
 }
@@ -85,16 +89,29 @@ def _task_table(task: str) -> dict[str, Any]:
 
 
 def qd_spec(algorithm: str, task: str, cpu: bool) -> dict[str, Any]:
-    """The spec of MAP-Elites or PGA-ME on `task` (the study's settings; `cpu`: 2-core sized)."""
-    batch = (100 if algorithm == "map_elites" else 32) if cpu else (1000 if algorithm == "map_elites" else 100)
-    iterations = {"map_elites": 100, "pga_me": 1000}[algorithm] if task == "point_maze" else 100_000
+    """The spec of MAP-Elites, PGA-ME, AURORA or PGA-AURORA on `task` (the study's settings; `cpu`:
+    2-core sized)."""
+    pg = algorithm in PG
+    batch = (32 if pg else 100) if cpu else (100 if pg else 1000)
+    iterations = (1000 if pg else 100) if task == "point_maze" else 100_000
     spec: dict[str, Any] = {
         "experiment": {"algorithm": algorithm, "name": algorithm, "seed": 0},
         "task": _task_table(task),
         "repertoire": {"kind": "cvt", "num_centroids": 1024, "cvt_samples": 50_000},
         "emitter": {"kind": "isoline", "batch_size": batch, "iso_sigma": 0.005, "line_sigma": 0.05},
     }
-    if algorithm == "pga_me":
+    if algorithm in ("aurora", "pga_aurora"):
+        # The study's AURORA: an LSTM autoencoder of 5 latent units, 25 observations every 10 steps,
+        # l from 0.2, AE batches of 128; on the `_uni` tasks it reads the observation's first 25
+        # entries (its "no_sd"), elsewhere the x-y position (prior descriptor dimension 2, "only_sd").
+        observation = "observation" if TASKS[task]["full_state"] else "state_descriptor"
+        spec["search_archive"] = {
+            "kind": "aurora", "encoder": "lstm", "latent_size": 5, "observation": observation,
+            "max_features": 25,
+            "sampling_period": 10, "num_observations": 25, "l_value": 0.2, "target_size": 1024,
+            "batch_size": 128,
+        }
+    if pg:
         spec["pg"] = {
             "proportion_mutation_ga": 0.5,
             "num_critic_training_steps": 50 if cpu else 300,

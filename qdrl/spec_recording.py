@@ -65,7 +65,9 @@ def _variants_of(spec: Mapping[str, Any], tasks: list[str], kinds: list[str]) ->
 def record() -> dict[str, Any]:
     """The schema of every algorithm of the table, from the packaged specs and their variants."""
     by_algorithm: dict[str, list[Mapping[str, Any]]] = {name: [] for name in ALGORITHMS}
-    for name in specs.spec_names():
+    # the top-level specs, then those of the folders (an algorithm whose only specs are there)
+    names = [*specs.spec_names(), *(n for folder in specs.SPEC_FOLDERS for n in specs.spec_names(folder))]
+    for name in names:
         spec = load_toml(specs.resolve(name))
         algorithm = spec.get("experiment", {}).get("algorithm")
         if algorithm in by_algorithm:

@@ -64,6 +64,7 @@ ALGORITHMS: dict[str, Recipe] = {
     "dds": qd.DDS,
     "dms": qd.DMS,
     "dns": qd.DNS,
+    "aurora": qd.AURORA,
     # QD-RL: MAP-Elites with actor-critic, evolution-strategy and PBT emitters
     "pga_me": qd.PGA_ME_RECIPE,
     "qdpg": qd.QDPG_RECIPE,
@@ -71,6 +72,7 @@ ALGORITHMS: dict[str, Recipe] = {
     "me_es": qd.ME_ES_RECIPE,
     "me_pbt_sac": qd.ME_PBT_SAC,
     "me_pbt_td3": qd.ME_PBT_TD3,
+    "pga_aurora": qd.PGA_AURORA,
     # multi-objective
     "mome": mo.MOME,
     "nsga2": mo.NSGA2,

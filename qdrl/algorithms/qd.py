@@ -44,6 +44,7 @@ from qdrl.algorithms.base import (
     scalar,
 )
 from qdrl.algorithms.search_archives import (
+    check_aurora,
     check_capacity,
     check_rankers,
     make_search_archive,
@@ -548,6 +549,7 @@ def _parse(
     source.check(config, task, qd)
     if search is not None:
         check_capacity(search, config.offspring)
+        check_aurora(search, task)
     if container is None:
         check_rankers(search, config)
     tables = source.tables(config)
@@ -611,7 +613,8 @@ def initial_genotypes(qd: QDConfig, parts: QDRLParts) -> Callable[[jax.Array], A
 
 def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
     """The row of a QD chunk: counters, the last iteration's QD metrics, offspring accepted
-    per iteration, and what the emitter reports of its state (critic steps, restarts)."""
+    per iteration, and what the emitter and the repertoire report of their state (critic steps,
+    restarts; a repertoire's `log_metrics()`, e.g. ME-LS' mean spread)."""
     m = jax.device_get(metrics)
     row: Row = {
         "iteration": int(state.iteration),
@@ -624,6 +627,8 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
             row.update(last_values(m, (extra,)))
     row["added_per_iter"] = float(np.mean(m["added"]))
     row.update({k: scalar(v) for k, v in jax.device_get(emitter_metrics(emitter, state.emitter_state)).items()})
+    if hasattr(state.repertoire, "log_metrics"):
+        row.update({k: scalar(v) for k, v in jax.device_get(state.repertoire.log_metrics()).items()})
     return row
 
 
@@ -713,7 +718,8 @@ def reevaluated(
 
 
 def _build(
-    sections: Sections, ctx: BuildContext, source: EmitterSource, container: Container | None = None
+    sections: Sections, ctx: BuildContext, source: EmitterSource, container: Container | None = None,
+    cells_as: Callable[[Any, Any], Any] | None = None,
 ) -> Algorithm:
     task = make_task_of(sections["task"])
     rep_cfg: RepertoireConfig = sections["repertoire"]
@@ -727,6 +733,8 @@ def _build(
 
     def empty(seed: int | None, centroids: Any) -> Any:
         cells = make_repertoire(rep_cfg, task, parts.example_genotype, seed, centroids)
+        if cells_as is not None:  # the cells as another container of one elite per cell
+            cells = cells_as(cells, config)
         if search_cfg is not None:  # the repertoire is the result archive beside the search archive
             return make_search_archive(search_cfg, task, parts.example_genotype, cells, seed)
         return cells if container is None else container.wrap(cells, sections, task, parts.example_genotype)
@@ -830,16 +838,19 @@ def qd_recipe(
     description: str = "",
     container: Container | None = None,
     search_archive: Mapping[str, Any] | None = None,
+    cells_as: Callable[[Any, Any], Any] | None = None,
 ) -> Recipe:
     """The recipe of MAP-Elites with the emitter of `source` (`repertoire`: defaults of
     `[repertoire]`, e.g. CMA-MAE's learning rate; `container`: another container than
     one elite per cell; `search_archive`: defaults of `[search_archive]`, the archive that
-    steers the search beside the repertoire, which then only records results)."""
+    steers the search beside the repertoire, which then only records results; `cells_as(cells,
+    config)`: the repertoire's cells made another repertoire of the same cells, given the
+    emitter source's config, e.g. the Uncertain-QD sampling methods' accumulating cells)."""
     defaults = dict(repertoire or {})
     search = dict(search_archive or {})
     return Recipe(
         parse=lambda spec, exp: _parse(spec, exp, source, defaults, container, search),
-        build=lambda sections, ctx: _build(sections, ctx, source, container),
+        build=lambda sections, ctx: _build(sections, ctx, source, container, cells_as),
         length_key="qd.num_iterations",
         description=description,
         array_sections=("emitters",),
@@ -925,4 +936,13 @@ DNS = qd_recipe(
     registry_source(default_repertoire="cvt"),
     search_archive={"kind": "dns"},
     description="Dominated Novelty Search (Bahlous-Boldi et al. 2025)",
+)
+
+AURORA = qd_recipe(
+    registry_source(default_repertoire="cvt"),
+    search_archive={"kind": "aurora"},
+    description="AURORA (Cully 2019; Grillotti & Cully 2022): descriptors learnt by an autoencoder",
+)
+PGA_AURORA = qd_recipe(
+    PGA_ME, search_archive={"kind": "aurora"}, description="PGA-AURORA: PGA-ME's emitters on AURORA's archive",
 )

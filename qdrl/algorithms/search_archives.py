@@ -37,18 +37,21 @@ from qdrl.config import (
     check_table,
     coerce,
 )
+from qdrl.qd.autoencoder import make_autoencoder
 from qdrl.qd.emitters.qd_rl import DCRLMEConfig, PGAMEConfig, QDPGConfig
 from qdrl.qd.emitters.rankers import INFO_FIELDS
 from qdrl.qd.emitters.registry import configs_of
+from qdrl.qd.repertoires.aurora import AuroraArchive, AuroraSettings, aurora_archive, sequence_size
 from qdrl.qd.repertoires.density import density_archive
 from qdrl.qd.repertoires.discount import discount_archive
 from qdrl.qd.repertoires.dns import dns_population
 from qdrl.qd.repertoires.proximity import proximity_archive
 from qdrl.qd.repertoires.result import Parents, ResultArchived, with_result_archive
-from qdrl.tasks import Task
+from qdrl.tasks import TASKS, Task
 
 __all__ = [
     "SEARCH_ARCHIVES",
+    "AuroraConfig",
     "DNSConfig",
     "DensityConfig",
     "DiscountConfig",
@@ -126,6 +129,43 @@ class DiscountConfig:
             )
 
 
+@dataclasses.dataclass(frozen=True)
+class AuroraConfig:
+    """AURORA's archive (Cully 2019; Grillotti & Cully 2022): codes of an autoencoder trained on
+    the elites' observation sequences, an unstructured archive and container size control.
+    Defaults: the skill-discovery benchmark's (Chalumeau et al. 2023) and QDax's example."""
+
+    kind: Literal["aurora"] = "aurora"
+    encoder: Literal["lstm", "mlp"] = "lstm"  # a sequence-to-sequence LSTM, or an MLP on the flat sequence
+    latent_size: PositiveInt = 5  # the code's size: the learnt descriptor's dimension
+    hidden: tuple[PositiveInt, ...] = (64, 64)  # mlp: the encoder's layers (the decoder mirrors them)
+    # what is recorded: the task's state descriptor (QDax's "only_sd"), the observation's first
+    # `max_features` entries ("no_sd") or both ("full")
+    observation: Literal["state_descriptor", "observation", "full"] = "state_descriptor"
+    sampling_period: PositiveInt = 10  # steps between two recorded observations
+    num_observations: PositiveInt = 25  # observations per sequence
+    max_features: PositiveInt = 25
+    l_value: PositiveFloat = 0.2  # the distance threshold's start value, in code units
+    capacity: PositiveInt = 2048  # most elites kept
+    target_size: PositiveInt = 1024  # container size control's target
+    csc_every: PositiveInt = 10  # iterations between two threshold adjustments
+    csc_gain: PositiveFloat = 1e-5  # the controller's gains
+    train_every: PositiveInt = 10  # first gap between trainings (the k-th is k times it)
+    epochs: PositiveInt = 100  # epochs per training, then `late_epochs` after `late_after` iterations
+    late_epochs: PositiveInt = 25
+    late_after: NonNegativeInt = 500
+    learning_rate: PositiveFloat = 1e-4  # Adam's step size
+    batch_size: PositiveInt = 128  # sequences per gradient step
+    parents: Literal["search"] = "search"
+
+    def check(self) -> None:
+        if self.target_size > self.capacity:
+            raise ValueError(
+                f"search_archive.target_size: expected at most search_archive.capacity={self.capacity}, "
+                f"got {self.target_size}"
+            )
+
+
 # The per-candidate fields each kind's `add` gives the rankers (`AddResult.info`).
 INFO_PROVIDED: dict[str, tuple[str, ...]] = {
     "proximity": ("novelty", "local_competition"), "dns": ("competition_fitness",), "density": ("density",),
@@ -133,8 +173,9 @@ INFO_PROVIDED: dict[str, tuple[str, ...]] = {
 }
 SEARCH_ARCHIVES: dict[str, type[Any]] = {
     "proximity": ProximityConfig, "dns": DNSConfig, "density": DensityConfig, "discount": DiscountConfig,
+    "aurora": AuroraConfig,
 }
-SearchArchiveConfig = ProximityConfig | DNSConfig | DensityConfig | DiscountConfig
+SearchArchiveConfig = ProximityConfig | DNSConfig | DensityConfig | DiscountConfig | AuroraConfig
 
 
 def parse_search_archive(spec: Mapping[str, Any], defaults: Mapping[str, Any] | None = None) -> Any:
@@ -205,6 +246,44 @@ def make_search_archive(config: Any, task: Task, example: Any, result: Any, seed
             config.train_batch_size, config.init_train_points, config.empty_points, cells=passive,
             discount_range=config.discount_range, key=key,
         )
+    elif isinstance(config, AuroraConfig):
+        search = make_aurora(config, task, example, key)
     else:
         raise TypeError(f"make_search_archive: unknown config {type(config).__name__}")
     return with_result_archive(search, result, config.parents)
+
+
+def check_aurora(config: Any, task: Mapping[str, Any]) -> None:
+    """Refuses AURORA on a task without episodes to observe, or sequences longer than an episode."""
+    if not isinstance(config, AuroraConfig):
+        return
+    if not TASKS[task["name"]].policy:
+        raise ConfigError(
+            f"search_archive.kind: AURORA learns descriptors from what a policy observes; expected a policy "
+            f"task (e.g. ant_omni, halfcheetah_uni, point_maze), got {task['name']!r}"
+        )
+    steps = int(task["episode_length"])
+    span = (config.num_observations - 1) * config.sampling_period
+    if span >= steps:
+        raise ConfigError(
+            f"search_archive.num_observations: expected (num_observations - 1) x sampling_period below "
+            f"task.episode_length={steps}, got ({config.num_observations} - 1) x {config.sampling_period} = {span}"
+        )
+
+
+def make_aurora(config: AuroraConfig, task: Task, example: Any, key: jax.Array) -> AuroraArchive:
+    """The empty AURORA archive of `config` for a policy task."""
+    assert task.env is not None, "check_aurora refuses a task without an environment"
+    settings = AuroraSettings(
+        autoencoder=make_autoencoder(
+            config.encoder, config.num_observations,
+            sequence_size(config.observation, config.max_features, task.descriptor_size, task.env.observation_size),
+            config.latent_size, hidden=config.hidden, learning_rate=config.learning_rate,
+            batch_size=config.batch_size,
+        ),
+        observation=config.observation, period=config.sampling_period, length=config.num_observations,
+        max_features=config.max_features, target_size=config.target_size, csc_every=config.csc_every,
+        csc_gain=config.csc_gain, train_every=config.train_every, epochs=config.epochs,
+        late_epochs=config.late_epochs, late_after=config.late_after,
+    )
+    return aurora_archive(example, settings, config.capacity, config.l_value, key)

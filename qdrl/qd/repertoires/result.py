@@ -145,16 +145,23 @@ def result_archive(repertoire: Any) -> Any:
 
 
 # What a search archive reports of itself, beside the result archive's QD metrics.
-SEARCH_METRICS = ("search_size", "novelty_threshold", "discount_loss")
+SEARCH_METRICS = (
+    "search_size", "novelty_threshold", "discount_loss",
+    "aurora_elites", "l_value", "autoencoder_loss", "autoencoder_trainings",
+)
 
 
 def search_archive_metrics(search: Any) -> dict[str, Array]:
     """`search_size` (solutions a proximity archive or DNS population holds, descriptors in a
     density buffer, cells a discount archive's record has reached), and where the archive has
-    them its current `novelty_threshold` and its discount model's last `discount_loss`; jittable."""
+    them its current `novelty_threshold` and its discount model's last `discount_loss`, or what
+    an archive reports of itself (`own_metrics`: AURORA's elites, threshold and autoencoder
+    loss); jittable."""
     out = {"search_size": jnp.asarray(search.num_filled, jnp.int32)}
     if hasattr(search, "novelty_threshold"):
         out["novelty_threshold"] = jnp.asarray(search.novelty_threshold, jnp.float32)
-    if hasattr(search, "loss"):
+    if hasattr(search, "own_metrics"):  # an archive that says what it reports (AURORA)
+        out.update(search.own_metrics())
+    elif hasattr(search, "loss"):
         out["discount_loss"] = jnp.asarray(search.loss, jnp.float32)
     return out
