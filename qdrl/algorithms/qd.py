@@ -795,6 +795,9 @@ def _build(
             container.plot(rep, out_dir, task, ctx.algorithm)
         else:
             plot_repertoire(rep, out_dir, task, title, rows, rep_cfg.fitness_range)
+        target = getattr(search_cfg, "target_size", None)
+        if rows and target is not None and "autoencoder_loss" in rows[-1]:  # AURORA's archive
+            plotting.plot_learnt_descriptors(rows, target, out_dir / "plots" / "learnt_descriptors.png", title=title)
 
     def chunk(state: Any) -> tuple[Any, dict[str, Any]]:
         """`qd.log_every` iterations; with `repertoire.fitness_range`, the CQD score at the end

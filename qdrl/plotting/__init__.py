@@ -45,6 +45,7 @@ _WHERE = {
     "plot_curves": "curves",
     "plot_fitness_ecdf": "distributions",
     "plot_fitness_histogram": "distributions",
+    "plot_learnt_descriptors": "learnt",
     "plot_cell_fronts": "pareto",
     "plot_cell_hypervolumes": "pareto",
     "plot_pareto_front": "pareto",
@@ -75,6 +76,7 @@ if TYPE_CHECKING:
     from qdrl.plotting.curves import default_x_keys, default_y_keys, plot_comparison, plot_curves
     from qdrl.plotting.distributions import plot_fitness_ecdf, plot_fitness_histogram
     from qdrl.plotting.feature_skills import plot_feature_skills, plot_profiles
+    from qdrl.plotting.learnt import plot_learnt_descriptors
     from qdrl.plotting.pareto import plot_cell_fronts, plot_cell_hypervolumes, plot_pareto_front
     from qdrl.plotting.repertoires import _colour_scale as _colour_scale
     from qdrl.plotting.repertoires import _draw_repertoire as _draw_repertoire
@@ -113,6 +115,7 @@ __all__ = [
     "plot_feature_skills",
     "plot_fitness_ecdf",
     "plot_fitness_histogram",
+    "plot_learnt_descriptors",
     "plot_parallel_axes",
     "plot_pareto_front",
     "plot_profiles",

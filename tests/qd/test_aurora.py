@@ -140,7 +140,7 @@ def test_a_tiny_run_learns_codes_fills_the_result_archive_and_resumes_bit_identi
     assert summary["num_elites"] > 0 and summary["coverage"] > 0
     assert summary["aurora_elites"] > 0 and summary["autoencoder_trainings"] >= 3  # batches 0, 2, 6
     assert math.isfinite(summary["autoencoder_loss"]) and summary["l_value"] > 0
-    for plot in ("autoencoder_loss", "aurora_elites", "l_value", "repertoire"):
+    for plot in ("autoencoder_loss", "aurora_elites", "l_value", "repertoire", "learnt_descriptors"):
         assert (out / "plots" / f"{plot}.png").exists(), plot
     keys = ("qd_score", "coverage", "aurora_elites", "l_value", "autoencoder_loss", "evaluations")
     resumes_bit_identically(spec, out, summary, keys)
