@@ -78,6 +78,9 @@ class Task:
     # Objectives the literature minimises, scored negated (ZDT, DTLZ2): plots draw minus the
     # fitnesses, in the objectives' own view.
     minimised: bool = False
+    # A policy task whose own scoring draws a random start state per episode (noisy evaluations:
+    # the Uncertain-QD benchmarks' random starts) instead of QDax's one fixed start.
+    random_start: bool = False
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
@@ -120,7 +123,8 @@ class Task:
         """The scoring of genotypes acting by `policy` (None: the task's own network): random
         start states (`fixed_start=False`, for re-evaluations) and recorded env states (`record`,
         for replays) need a policy task; other tasks have one scoring function."""
-        if self.policy_scoring is None or (policy is None and fixed_start and record is None):
+        own = policy is None and record is None and fixed_start != self.random_start
+        if self.policy_scoring is None or own:
             return self.scoring_fn
         return self.policy_scoring(policy, fixed_start=fixed_start, record=record)
 

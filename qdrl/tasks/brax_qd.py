@@ -105,22 +105,25 @@ def brax_policy_task(
     eval_batch: int = DEFAULT_EVAL_BATCH,
     descriptor_names: Sequence[str] = (),
     policy_activation: str = "tanh",
+    random_start: bool = False,
 ) -> Task:
     """A `Task` whose genotypes are policies acting in `env` for one episode each.
 
     The episode's state descriptor ("final" or "mean" over its steps) is clipped to
     the descriptor bounds; the fitness is the episode return. Episodes are rolled
-    out in blocks of `eval_batch` (`qdrl.tasks.policy.policy_scoring_fn`).
+    out in blocks of `eval_batch` (`qdrl.tasks.policy.policy_scoring_fn`), from one fixed
+    start state, or each from its own random one with `random_start`.
     """
     return policy_task(
         name, env, descriptor, descriptor_low, descriptor_high, qd_offset, policy_hidden,
         eval_batch=eval_batch, descriptor_names=descriptor_names, policy_activation=policy_activation,
+        random_start=random_start,
     )
 
 
 def _uni(
     task: str, robot: str, episode_length: int, backend: str, policy_hidden: Sequence[int],
-    eval_batch: int, policy_activation: str,
+    eval_batch: int, policy_activation: str, random_start: bool = False,
 ) -> Task:
     env = BraxEnv(robot, backend, episode_length, state_descriptor="feet_contact")
     n_feet = env.descriptor_size
@@ -135,6 +138,7 @@ def _uni(
         eval_batch,
         FEET_NAMES[robot],
         policy_activation,
+        random_start,
     )
 
 
@@ -155,6 +159,7 @@ def ant_uni(
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
     policy_activation: Activation = "tanh",
+    random_start: bool = False,  # each episode from its own random state (noisy evaluations)
 ) -> Task:
     """Ant, feet-contact rates of its 4 feet in [0, 1]^4; fitness = brax's ant reward summed.
 
@@ -162,7 +167,9 @@ def ant_uni(
     cost is 0). The episode terminates when the torso leaves z in [0.2, 1].
     Default backend spring (fastest; QDax's default).
     """
-    return _uni("ant_uni", "ant", episode_length, backend, policy_hidden, eval_batch, policy_activation)
+    return _uni(
+        "ant_uni", "ant", episode_length, backend, policy_hidden, eval_batch, policy_activation, random_start,
+    )
 
 
 def halfcheetah_uni(
@@ -171,6 +178,7 @@ def halfcheetah_uni(
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
     policy_activation: Activation = "tanh",
+    random_start: bool = False,  # each episode from its own random state (noisy evaluations)
 ) -> Task:
     """HalfCheetah, feet-contact rates (back foot, front foot) in [0, 1]^2; fitness = its reward.
 
@@ -178,7 +186,9 @@ def halfcheetah_uni(
     backend spring (halfcheetah on mjx with brax's default solver is several times
     slower).
     """
-    return _uni("halfcheetah_uni", "halfcheetah", episode_length, backend, policy_hidden, eval_batch, policy_activation)
+    return _uni(
+        "halfcheetah_uni", "halfcheetah", episode_length, backend, policy_hidden, eval_batch, policy_activation, random_start,
+    )
 
 
 def walker2d_uni(
@@ -187,13 +197,16 @@ def walker2d_uni(
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
     policy_activation: Activation = "tanh",
+    random_start: bool = False,  # each episode from its own random state (noisy evaluations)
 ) -> Task:
     """Walker2d, feet-contact rates (right foot, left foot) in [0, 1]^2; fitness = its reward.
 
     Reward per step: forward velocity + 1 (survival) - 0.001 |a|^2; terminates
     when the torso falls or tilts. Default backend spring (fastest).
     """
-    return _uni("walker2d_uni", "walker2d", episode_length, backend, policy_hidden, eval_batch, policy_activation)
+    return _uni(
+        "walker2d_uni", "walker2d", episode_length, backend, policy_hidden, eval_batch, policy_activation, random_start,
+    )
 
 
 def hopper_uni(
@@ -202,13 +215,16 @@ def hopper_uni(
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
     policy_activation: Activation = "tanh",
+    random_start: bool = False,  # each episode from its own random state (noisy evaluations)
 ) -> Task:
     """Hopper, contact rate of its foot in [0, 1]; fitness = its reward.
 
     Reward per step: forward velocity + 1 (survival) - 0.001 |a|^2; terminates
     when unhealthy. Default backend spring (fastest).
     """
-    return _uni("hopper_uni", "hopper", episode_length, backend, policy_hidden, eval_batch, policy_activation)
+    return _uni(
+        "hopper_uni", "hopper", episode_length, backend, policy_hidden, eval_batch, policy_activation, random_start,
+    )
 
 
 def humanoid_uni(
@@ -217,6 +233,7 @@ def humanoid_uni(
     policy_hidden: tuple[PositiveInt, ...] = (64, 64),
     eval_batch: PositiveInt = DEFAULT_EVAL_BATCH,
     policy_activation: Activation = "tanh",
+    random_start: bool = False,  # each episode from its own random state (noisy evaluations)
 ) -> Task:
     """Humanoid, contact rates of its feet (right, left; the shin links) in [0, 1]^2.
 
@@ -224,7 +241,9 @@ def humanoid_uni(
     + 5 (survival) - 0.1 |ctrl|^2; terminates when the torso leaves z in [1, 2].
     Default backend spring (fastest; QDax's default).
     """
-    return _uni("humanoid_uni", "humanoid", episode_length, backend, policy_hidden, eval_batch, policy_activation)
+    return _uni(
+        "humanoid_uni", "humanoid", episode_length, backend, policy_hidden, eval_batch, policy_activation, random_start,
+    )
 
 
 def ant_omni(

@@ -234,6 +234,7 @@ def policy_task(
     reference_point: Sequence[float] | None = None,
     descriptor_names: Sequence[str] = (),
     policy_activation: str = "tanh",
+    random_start: bool = False,
 ) -> Task:
     """A `Task` whose genotypes are MLP policies acting in `env` for one episode each.
 
@@ -243,7 +244,8 @@ def policy_task(
     Episodes are rolled out in blocks of `eval_batch` (see `policy_scoring_fn`).
     With `objectives` (per-step rewards (n, M) of the env state, see
     `policy_scoring_fn`) the fitness is their episode sums and the task has M
-    objectives, measured from `reference_point`.
+    objectives, measured from `reference_point`. With `random_start`, each episode of the
+    task's scoring starts from its own random state (noisy evaluations), not the fixed one.
     """
     if objectives is not None and reference_point is None:
         raise ValueError(f"{name}: a task with objectives needs a reference_point")
@@ -277,7 +279,7 @@ def policy_task(
 
     return Task(
         name=name,
-        scoring_fn=scoring_for(network),
+        scoring_fn=scoring_for(network, fixed_start=not random_start),
         descriptor_low=tuple(float(v) for v in descriptor_low),
         descriptor_high=tuple(float(v) for v in descriptor_high),
         genotype_size=num_parameters(template),
@@ -294,4 +296,5 @@ def policy_task(
         reference_point=None if reference_point is None else tuple(float(v) for v in reference_point),
         descriptor_names=tuple(descriptor_names),
         policy=PolicyNetwork(network, obs_size, env.action_size),
+        random_start=random_start,
     )
