@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import difflib
 
-from qdrl.algorithms import cma_es, feature_skills, mo, pbt, qd, rl, skills
+from qdrl.algorithms import cma_es, feature_skills, mo, pbt, qd, rl, skills, uncertain
 from qdrl.algorithms.base import Algorithm, BuildContext, ExperimentConfig, LogConfig, Recipe
 from qdrl.config import ConfigError
 
@@ -65,6 +65,10 @@ ALGORITHMS: dict[str, Recipe] = {
     "dms": qd.DMS,
     "dns": qd.DNS,
     "aurora": qd.AURORA,
+    # Uncertain QD: candidates evaluated several times, cells that keep more than one elite
+    "me_sampling": uncertain.ME_SAMPLING,
+    "me_ls": uncertain.ME_LS,
+    "deep_grid": uncertain.DEEP_GRID,
     # QD-RL: MAP-Elites with actor-critic, evolution-strategy and PBT emitters
     "pga_me": qd.PGA_ME_RECIPE,
     "qdpg": qd.QDPG_RECIPE,
