@@ -16,7 +16,17 @@ from __future__ import annotations
 
 import difflib
 
-from qdrl.algorithms import cma_es, feature_skills, mo, pbt, qd, rl, skills, uncertain
+from qdrl.algorithms import (
+    cma_es,
+    feature_skills,
+    mo,
+    pbt,
+    qd,
+    rl,
+    skills,
+    uncertain,
+    uncertain_sampling,
+)
 from qdrl.algorithms.base import Algorithm, BuildContext, ExperimentConfig, LogConfig, Recipe
 from qdrl.config import ConfigError
 
@@ -69,6 +79,10 @@ ALGORITHMS: dict[str, Recipe] = {
     "me_sampling": uncertain.ME_SAMPLING,
     "me_ls": uncertain.ME_LS,
     "deep_grid": uncertain.DEEP_GRID,
+    # Uncertain QD: elites re-evaluated, their samples accumulated
+    "archive_sampling": uncertain_sampling.ARCHIVE_SAMPLING,
+    "adaptive_sampling": uncertain_sampling.ADAPTIVE_SAMPLING,
+    "parallel_adaptive_sampling": uncertain_sampling.PARALLEL_ADAPTIVE_SAMPLING,
     # QD-RL: MAP-Elites with actor-critic, evolution-strategy and PBT emitters
     "pga_me": qd.PGA_ME_RECIPE,
     "qdpg": qd.QDPG_RECIPE,
