@@ -138,6 +138,10 @@ _REPORT = (
 _RL = "a 150k-step `qdrl run` of agents/{0}_halfcheetah.toml's agent (its metrics.csv kept as {0}_halfcheetah_150k.csv; the run's plots/eval_return.png)"
 
 FIGURES: tuple[Figure, ...] = (
+    # Multi-task MAP-Elites (docs/algorithms/multi-task.md)
+    Figure("docs/mt_me_arm.png", "mt_me_arm:plot", (f"{RESULTS}/mt_me_arm.jsonl",),
+           recorded_by="python benchmarks/mt_me_arm.py --seeds 3; python benchmarks/mt_me_arm.py "
+                       "--methods cma_es_per_task_x10 --seeds 1 --append"),
     # MAP-Elites and CVT-MAP-Elites (docs/algorithms/qd.md, README, index, getting started)
     Figure("docs/report_arm_qd_score.png", "qdrl.plotting:plot_comparison", recorded_by=f"{_REPORT} (arm/qd_score.png)",
            unrecorded="drawn by `qdrl report` from the 10 runs' metrics.csv (runs/, not kept); "

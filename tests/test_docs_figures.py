@@ -38,6 +38,7 @@ RUN_TIME_OUTPUTS = {
     "plots/fitness_histogram.png",  # qdrl run of a QD algorithm: its elites' fitnesses
     "plots/fitness_ecdf.png",  # the same as an empirical CDF
     "plots/parallel_axes.png",  # the same for descriptors of more than two dimensions
+    "plots/learnt_descriptors.png",  # qdrl run of AURORA: its autoencoder loss, elites and threshold
     "plots/replay_skills.png",  # qdrl render RUN: every skill's path
     "plots/replay_skill3.png",  # qdrl render RUN --skill 3
     "plots/replay_agent.png",  # qdrl render RUN of an RL agent: its first evaluation episode

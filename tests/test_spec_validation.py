@@ -305,7 +305,7 @@ def test_sections_of_the_wrong_type_unknown_keys_and_sections(path: Path) -> Non
 
 def test_missing_algorithm_section_and_required_keys() -> None:
     spec = load_toml(SPECS[0])
-    with pytest.raises(ConfigError, match=r"^experiment\.algorithm: missing; expected one of \['cma_es', "):
+    with pytest.raises(ConfigError, match=r"^experiment\.algorithm: missing; expected one of \['adaptive_sampling', "):
         check_spec({**spec, "experiment": {"seed": 0}})
     with pytest.raises(ConfigError, match=r"^experiment\.algorithm: expected one of \[.*\], got 'ppo'$"):
         check_spec(with_value(spec, "experiment", "algorithm", "ppo"))
@@ -371,7 +371,7 @@ CLI_SAMPLE: tuple[tuple[str, tuple[str, ...], str], ...] = (
     ("default.toml", ("archive.low=[-inf,-inf]",), "archive.low: expected a list of finite numbers, got [-inf, -inf]"),
     ("pga_me_halfcheetah_uni_cpu.toml", ("pg.discount=nan",), "pg.discount: expected a number in [0, 1], got nan"),
     ('qd = 5\n[experiment]\nalgorithm = "map_elites"\n', (), "qd: expected a table ([qd] followed by key = value lines), got 5"),
-    ("[experiment]\nseed = 1\n", (), "experiment.algorithm: missing; expected one of ['cma_es',"),
+    ("[experiment]\nseed = 1\n", (), "experiment.algorithm: missing; expected one of ['adaptive_sampling',"),
 )
 
 

@@ -20,6 +20,7 @@ from qdrl.algorithms import (
     cma_es,
     feature_skills,
     mo,
+    multi_task,
     pbt,
     qd,
     rl,
@@ -79,7 +80,7 @@ ALGORITHMS: dict[str, Recipe] = {
     "me_sampling": uncertain.ME_SAMPLING,
     "me_ls": uncertain.ME_LS,
     "deep_grid": uncertain.DEEP_GRID,
-    # Uncertain QD: elites re-evaluated, their samples accumulated
+    # Uncertain QD: elites that keep their samples, re-evaluated (Archive-, Adaptive-Sampling)
     "archive_sampling": uncertain_sampling.ARCHIVE_SAMPLING,
     "adaptive_sampling": uncertain_sampling.ADAPTIVE_SAMPLING,
     "parallel_adaptive_sampling": uncertain_sampling.PARALLEL_ADAPTIVE_SAMPLING,
@@ -91,6 +92,8 @@ ALGORITHMS: dict[str, Recipe] = {
     "me_pbt_sac": qd.ME_PBT_SAC,
     "me_pbt_td3": qd.ME_PBT_TD3,
     "pga_aurora": qd.PGA_AURORA,
+    # one elite per task of a multi-task family (Mouret & Maguire 2020)
+    "mt_me": multi_task.MT_ME,
     # multi-objective
     "mome": mo.MOME,
     "nsga2": mo.NSGA2,

@@ -19,6 +19,7 @@ from qdrl.tasks.functions import rastrigin, rastrigin_proj, sphere, sphere_proj
 from qdrl.tasks.jumanji_qd import snake
 from qdrl.tasks.lp import lp_plateau, lp_rastrigin, lp_sphere
 from qdrl.tasks.mo import MO_TASKS
+from qdrl.tasks.multi_task import MULTI_TASK_TASKS
 from qdrl.tasks.point_maze import point_maze
 
 _FUNCTIONS: dict[str, Callable[..., Task]] = {
@@ -45,6 +46,7 @@ TASKS: dict[str, TaskEntry] = {
     **{name: TaskEntry(build) for name, build in _FUNCTIONS.items()},
     **{name: TaskEntry(build, policy=True) for name, build in _POLICIES.items()},
     **MO_TASKS,
+    **MULTI_TASK_TASKS,
 }
 
 
