@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any, Literal, NamedTuple
 
 import jax
@@ -32,6 +33,7 @@ import jax.numpy as jnp
 from qdrl.config import ConfigError, NonNegativeFloat, PositiveInt, check_fields
 from qdrl.qd.base import AddResult, Evaluation, Repertoire
 from qdrl.qd.emitters.ga import VariationFn, isoline_variation, sbx_crossover
+from qdrl.qd.emitters.scheduler import ucb1
 from qdrl.tasks.multi_task import GENES, TASK
 from qdrl.types import Array, Genotype, PRNGKey
 
@@ -62,9 +64,7 @@ def ucb1_values(pulls: Array, rewards: Array) -> Array:
 
     Auer, Cesa-Bianchi & Fischer 2002, "Finite-time analysis of the multiarmed bandit problem".
     """
-    n = jnp.maximum(jnp.sum(pulls), 1).astype(jnp.float32)
-    n_a = jnp.maximum(pulls, 1).astype(jnp.float32)
-    values = rewards / n_a + jnp.sqrt(2.0 * jnp.log(n) / n_a)
+    values = ucb1(rewards, pulls.astype(jnp.float32), math.sqrt(2.0))  # the bandit scheduler's, zeta = sqrt(2)
     return jnp.where(pulls > 0, values, jnp.inf)
 
 
