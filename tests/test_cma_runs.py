@@ -143,7 +143,7 @@ def _spec(name: str, **sections: dict[str, Any]) -> dict[str, Any]:
         ("dns_lp_sphere", "search_archive", {"k": 0}, "search_archive.k: expected a positive integer, got 0"),
         ("dns_lp_sphere", "search_archive", {"tie_rule": "pyribs"}, "search_archive.tie_rule: expected one of 'qdax', 'strict', got 'pyribs'"),
         ("dds_lp_sphere", "search_archive", {"bandwidth": 0.0}, "search_archive.bandwidth: expected a number > 0, got 0.0"),
-        ("dds_lp_sphere", "search_archive", {"kind": "kde"}, "search_archive.kind: expected one of ['density', 'discount', 'dns', 'proximity'], got 'kde'"),
+        ("dds_lp_sphere", "search_archive", {"kind": "kde"}, "search_archive.kind: expected one of ['aurora', 'density', 'discount', 'dns', 'proximity'], got 'kde'"),
         ("dms_lp_sphere", "search_archive", {"learning_rate": 0.0}, "search_archive.learning_rate: expected a number in (0, 1], got 0.0"),
         ("dms_lp_sphere", "search_archive", {"discount_range": [1.0, 0.0]}, "search_archive.discount_range: expected [lo, hi] with lo < hi, got [1.0, 0.0]"),
         ("cma_me_lp_sphere", "emitter", {"ranker": "nslc"}, "emitter.ranker: 'nslc' ranks by the 'novelty' that a proximity archive gives"),

@@ -129,7 +129,7 @@ def test_a_spec_of_another_task_or_a_bad_value_is_named(tmp_path: Path) -> None:
 def test_the_packaged_suites_name_only_specs_that_exist() -> None:
     assert suites.suite_names() == ["dns_walker2d", "metra_cpu", "qdac_cpu", "seed_benchmark", "seed_benchmark_cpu"]
     full, cpu = suites.load_suite("seed_benchmark"), suites.load_suite("seed_benchmark_cpu")
-    assert len(full.entries) == 8 * 7 * 5 and len(cpu.entries) == (3 * 7 + 3 * 2) * 2
+    assert len(full.entries) == 10 * 7 * 5 and len(cpu.entries) == (3 * 7 + 3 * 2) * 2
     assert cpu.config.time_limit_s == 600 and full.config.time_limit_s is None  # the specs' own budgets
     assert {e.spec.parent.name for e in cpu.entries} == {"seed_benchmark"}
     with pytest.raises(ConfigError, match="close names: seed_benchmark_cpu"):
