@@ -17,8 +17,8 @@ Sections beside the QD ones:
     [deep_grid]       # deep_grid only
     depth = 50        # solutions a cell keeps (the paper's depth)
 
-An iteration evaluates `emitter.batch_size x sampling.num_samples` times; the logged
-`evaluations` count candidates, and the summary's `num_samples` converts them.
+An iteration evaluates `emitter.batch_size x sampling.num_samples` times, and the logged
+`evaluations` count every one of them (the summary's `num_samples` says how many per candidate).
 """
 
 from __future__ import annotations

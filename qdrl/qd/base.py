@@ -33,6 +33,17 @@ ScoringFn = Callable[[Genotype, PRNGKey], Evaluation]
 # splits each on its batch axis.
 TIME_MAJOR_EXTRAS = frozenset({"transitions", "mask", "recorded"})
 
+# The extra of a candidate evaluated several times (`qdrl.qd.sampling`): its per-sample values,
+# batch-major, {"fitnesses": (n, N), "descriptors": (n, N, D)}.
+SAMPLES = "samples"
+
+
+def evaluations_spent(evaluation: Evaluation, n: int) -> int:
+    """How many evaluations a batch of n candidates cost: n, or n x N when each candidate was
+    evaluated N times (`extras["samples"]`). Static: read from shapes."""
+    samples = evaluation.extras.get(SAMPLES)
+    return n if samples is None else n * int(samples["fitnesses"].shape[1])
+
 
 class AddResult(NamedTuple):
     """Per-candidate outcome of `repertoire.add`, for emitters that rank offspring.

@@ -38,6 +38,7 @@ from qdrl.qd.base import (
     ScoringFn,
     add_evaluation,
     evaluation_descriptor_size,
+    evaluations_spent,
 )
 from qdrl.qd.metrics import qd_metrics
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
@@ -264,7 +265,7 @@ class MapElites:
             emitter_state=emitter_state,
             key=key,
             iteration=jnp.zeros((), jnp.int32),
-            evaluations=jnp.asarray(n, jnp.int32),
+            evaluations=jnp.asarray(evaluations_spent(evaluation, n), jnp.int32),
             env_steps=jnp.asarray(evaluation.env_steps, jnp.int32),
         ))
 
@@ -328,7 +329,7 @@ class MapElites:
             emitter_state=emitter_state,
             key=key,
             iteration=state.iteration + 1,
-            evaluations=state.evaluations + n,
+            evaluations=state.evaluations + evaluations_spent(evaluation, n),
             env_steps=state.env_steps + jnp.asarray(evaluation.env_steps, jnp.int32),
         ))
         return new, self._metrics(new, added)

@@ -13,13 +13,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from qdrl.qd.base import Evaluation, ScoringFn
+from qdrl.qd.base import SAMPLES, Evaluation, ScoringFn
 from qdrl.types import Genotype, PRNGKey
 
 __all__ = ["SAMPLES", "sampled_scoring"]
-
-# The extra that holds the per-sample values: {"fitnesses": (n, N), "descriptors": (n, N, D)}.
-SAMPLES = "samples"
 
 
 def sampled_scoring(scoring_fn: ScoringFn, num_samples: int) -> ScoringFn:
@@ -30,6 +27,7 @@ def sampled_scoring(scoring_fn: ScoringFn, num_samples: int) -> ScoringFn:
     default extractors), its env steps their sum, and `extras["samples"]` holds the samples,
     batch-major: {"fitnesses": (n, N), "descriptors": (n, N, D)}; the other extras are those
     of the first sample. A failed sample (NaN) makes the mean NaN, so the candidate is rejected.
+    The QD loop counts n x N evaluations for the batch (`qdrl.qd.base.evaluations_spent`).
     N = 1 returns `scoring_fn` itself.
     """
     if not isinstance(num_samples, int) or num_samples < 1:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -89,6 +90,20 @@ def test_trainings_follow_the_growing_schedule_and_every_elite_is_re_encoded() -
     d = np.asarray(archive.descriptors)[filled]
     dist = np.linalg.norm(d[:, None] - d[None], axis=-1) + np.eye(len(d)) * 1e9
     assert dist.min() >= float(archive.l_value) - 1e-6
+
+
+def test_each_training_draws_a_fresh_key_from_the_archive_s_own_key() -> None:
+    ev = _evaluation(jax.random.PRNGKey(3), 16)
+    a = _archive()
+    once, _ = a.add_evaluation(jnp.zeros((16, 3)), ev)
+    assert int(once.trainings) == 1
+    # the key moved on at the training, and it is not the one the autoencoder was initialised from
+    assert not np.array_equal(jax.random.key_data(once.key), jax.random.key_data(a.key))
+    # the same state trains to the same model; another key to another one
+    again, _ = a.add_evaluation(jnp.zeros((16, 3)), ev)
+    np.testing.assert_array_equal(np.asarray(once.loss), np.asarray(again.loss))
+    other, _ = dataclasses.replace(a, key=jax.random.PRNGKey(7)).add_evaluation(jnp.zeros((16, 3)), ev)
+    assert float(other.loss) != float(once.loss)
 
 
 @pytest.mark.parametrize(("target", "direction"), [(2, 1.0), (60, -1.0)])

@@ -19,7 +19,7 @@ import qdrl.algorithms  # noqa: F401  (the full spec check, whatever the package
 from qdrl import checkpoint
 from qdrl.cli import main
 from qdrl.experiment import run_spec
-from qdrl.qd.base import Evaluation
+from qdrl.qd.base import Evaluation, evaluations_spent
 from qdrl.qd.repertoires.cells import grid_repertoire
 from qdrl.qd.repertoires.deep_grid import DeepGrid, deep_grid, in_cell_weights
 from qdrl.qd.repertoires.mels import MELSRepertoire, mels_repertoire, sample_cells, spread
@@ -56,6 +56,7 @@ def test_sampled_scoring_means_the_samples_of_independent_keys(jit: bool) -> Non
     np.testing.assert_allclose(ev.fitnesses, np.mean(samples["fitnesses"], axis=1), rtol=1e-6)
     np.testing.assert_allclose(ev.descriptors, np.mean(samples["descriptors"], axis=1), rtol=1e-6)
     assert int(ev.env_steps) == 5 * 4
+    assert evaluations_spent(ev, 4) == 5 * 4 and evaluations_spent(_noisy(genotypes, key), 4) == 4
     np.testing.assert_array_equal(ev.extras["tag"], np.arange(4))  # other extras: the first sample's
     # the samples differ (independent keys) and their mean is closer to the truth than one sample
     assert float(np.std(samples["fitnesses"][0])) > 0.1
@@ -244,7 +245,8 @@ def test_uncertain_rows_run_through_the_cli_with_corrected_metrics(
         assert math.isfinite(summary[key]), key
     assert summary["corrected_num_elites"] > 0 and summary["reevaluate_samples"] == 4
     assert summary["num_samples"] == (1 if algorithm == "deep_grid" else 3)
-    assert summary["evaluations"] == 8 + 6 * 8  # candidates (each scored num_samples times)
+    # every evaluation counts: 8 candidates at init and 6 iterations of 8, each scored num_samples times
+    assert summary["evaluations"] == (8 + 6 * 8) * summary["num_samples"]
     if own is not None:
         assert math.isfinite(summary[own]) and summary[own] > 0
     assert (out / "reevaluation.json").is_file() and (out / "repertoire.npz").is_file()

@@ -110,6 +110,7 @@ class AuroraArchive:
       next_training: () int32 the batch after which the autoencoder is trained next.
       trainings: () int32 trainings done.
       previous_error: () float32 container size control's last error (elites minus target).
+      key: the key the trainings' minibatches are drawn from (split at each training).
       settings: the static settings.
     """
 
@@ -119,6 +120,7 @@ class AuroraArchive:
     next_training: Array
     trainings: Array
     previous_error: Array
+    key: PRNGKey
     settings: AuroraSettings
 
     @property
@@ -210,9 +212,9 @@ class AuroraArchive:
 
     def _train(self) -> AuroraArchive:
         s = self.settings
-        key = jax.random.fold_in(jax.random.PRNGKey(0), self.iteration)
+        key, train_key = jax.random.split(self.key)
         epochs = jnp.where(self.iteration <= s.late_after, s.epochs, s.late_epochs)
-        model = s.autoencoder.train(self.model, self.sequences, self.filled, key, epochs)
+        model = s.autoencoder.train(self.model, self.sequences, self.filled, train_key, epochs)
         codes = s.autoencoder.encode(model, self.sequences)
         trainings = self.trainings + 1
         archive = self._rebuilt(codes, self.archive.l_value)
@@ -225,6 +227,7 @@ class AuroraArchive:
             trainings=trainings,
             next_training=self.iteration + s.train_every * trainings,
             previous_error=jnp.where(self.trainings == 0, error, self.previous_error),
+            key=key,
         )
 
     def control_size(self) -> AuroraArchive:
@@ -241,7 +244,7 @@ class AuroraArchive:
 
 jax.tree_util.register_dataclass(
     AuroraArchive,
-    data_fields=["archive", "model", "iteration", "next_training", "trainings", "previous_error"],
+    data_fields=["archive", "model", "iteration", "next_training", "trainings", "previous_error", "key"],
     meta_fields=["settings"],
 )
 
@@ -250,17 +253,19 @@ def aurora_archive(
     genotype_example: Genotype, settings: AuroraSettings, capacity: int, l_value: float, key: PRNGKey
 ) -> AuroraArchive:
     """An empty AURORA archive of `capacity` slots, threshold `l_value`, and an untrained
-    autoencoder initialised from `key`."""
+    autoencoder initialised from `key` (which also seeds the trainings' minibatches)."""
     ae = settings.autoencoder
     if capacity < settings.target_size:
         raise ValueError(f"capacity: expected at least target_size={settings.target_size}, got {capacity}")
+    init_key, train_key = jax.random.split(key)
     sequence = jax.ShapeDtypeStruct((ae.sequence_length, ae.observation_size), jnp.float32)
     return AuroraArchive(
         archive=unstructured_repertoire((genotype_example, sequence), capacity, ae.latent_size, l_value),
-        model=ae.init(key),
+        model=ae.init(init_key),
         iteration=jnp.zeros((), jnp.int32),
         next_training=jnp.zeros((), jnp.int32),
         trainings=jnp.zeros((), jnp.int32),
         previous_error=jnp.asarray(-float(settings.target_size), jnp.float32),
+        key=train_key,
         settings=settings,
     )
