@@ -28,6 +28,7 @@ from qdrl.qd.base import Emitter, Evaluation
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.emitters.multi import MultiEmitter, split_batch
 from qdrl.qd.emitters.pg import PGConfig, PGEmitter, flatten_valid
+from qdrl.qd.neighbours import nearest_in_prefix
 from qdrl.types import Array, PRNGKey, Transition
 
 
@@ -71,12 +72,10 @@ def novelty(archive: DescriptorArchive, descriptors: Array, num_neighbours: int)
 
     With fewer than k entries stored, the mean is over those there are (0 when empty).
     """
-    dist = jnp.linalg.norm(descriptors[:, None, :] - archive.data[None, :, :], axis=-1)
-    valid = jnp.arange(archive.data.shape[0]) < archive.size
-    dist = jnp.where(valid[None, :], dist, jnp.inf)
     k = min(num_neighbours, archive.data.shape[0])
-    nearest = -jax.lax.top_k(-dist, k)[0]
-    finite = jnp.isfinite(nearest)
+    sq, _ = nearest_in_prefix(descriptors, archive.data, archive.size, k)
+    finite = jnp.isfinite(sq)
+    nearest = jnp.sqrt(jnp.where(finite, sq, 0.0))
     count = jnp.maximum(jnp.sum(finite, axis=-1), 1)
     return jnp.sum(jnp.where(finite, nearest, 0.0), axis=-1) / count
 

@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult
+from qdrl.qd.neighbours import smallest_k, squared_distances
 from qdrl.qd.repertoires.cells import (
     Slots,
     check_batch,
@@ -74,7 +75,7 @@ def competition_fitness(
     if tie_rule not in TIE_RULES:
         raise ValueError(f"tie_rule must be one of {', '.join(TIE_RULES)}, got {tie_rule!r}")
     p = fitnesses.shape[0]
-    sq = jnp.sum((descriptors[:, None, :] - descriptors[None, :, :]) ** 2, axis=-1)
+    sq = squared_distances(descriptors, descriptors)
     if tie_rule == "qdax":
         fitter = fitnesses[None, :] >= fitnesses[:, None]
     else:
@@ -83,10 +84,10 @@ def competition_fitness(
     k_eff = min(k, p - 1)
     if k_eff < 1:  # a pool of one row: nobody has a neighbour
         return jnp.where(members, jnp.inf, -jnp.inf)
-    # The k smallest distances to fitter members, nearest first (top_k of the negation).
-    neg, cols = jax.lax.top_k(-jnp.where(fitter, sq, jnp.inf), k_eff)
-    near = jnp.take_along_axis(fitter, cols, axis=1)
-    dist = jnp.sqrt(jnp.where(near, -neg, 0.0))
+    # The k smallest distances to fitter members, nearest first (+inf: fewer fitter).
+    nearest, _ = smallest_k(jnp.where(fitter, sq, jnp.inf), k_eff)
+    near = jnp.isfinite(nearest)
+    dist = jnp.sqrt(jnp.where(near, nearest, 0.0))
     count = jnp.sum(near, axis=1)
     mean = jnp.sum(dist, axis=1) / jnp.maximum(count, 1).astype(dist.dtype)
     return jnp.where(members, jnp.where(count > 0, mean, jnp.inf), -jnp.inf)

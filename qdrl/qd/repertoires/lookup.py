@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from qdrl.qd.neighbours import squared_distances
 from qdrl.types import Array
 
 MAX_LOOKUP_CELLS = 1 << 18  # bounds the one-off construction cost and the table's memory
@@ -166,26 +167,13 @@ def direct_nearest(points: Array, centroids: Array) -> Array:
     return jnp.argmin(sq_dist, axis=-1).astype(jnp.int32)
 
 
-def _sq_dists(points: Array, cand: Array) -> Array:
-    """(n, K) squared distances from points (n, D) to cand (n, K, D) or (K, D), one dimension at a time.
-
-    Summing D terms of (n, K) keeps the K axis minor (vectorised on a CPU) instead
-    of reducing a minor axis of length D: faster for D = 2.
-    """
-    cand = cand if cand.ndim == 3 else cand[None]
-    return sum(
-        (jnp.square(points[:, i : i + 1] - cand[:, :, i]) for i in range(points.shape[1])),
-        start=jnp.zeros((), points.dtype),
-    )
-
-
 def lookup_nearest(points: Array, centroids: Array, lookup: Lookup) -> Array:
     """(n,) int32 nearest centroid of each point (n, D), exact, through the lookup grid.
 
     Points inside the box: their lookup cell's candidates; outside: the hull's.
     """
     cand = lookup.table[grid_bins(points, lookup.shape, lookup.low, lookup.high)]  # (n, K)
-    best = jnp.argmin(_sq_dists(points, centroids[cand]), -1)  # first of equals: lowest index
+    best = jnp.argmin(squared_distances(points, centroids[cand]), -1)  # first of equals: lowest index
     fast = jnp.take_along_axis(cand, best[:, None], 1)[:, 0]
     lo = jnp.asarray(lookup.low, jnp.float32)
     hi = jnp.asarray(lookup.high, jnp.float32)
@@ -193,7 +181,7 @@ def lookup_nearest(points: Array, centroids: Array, lookup: Lookup) -> Array:
     outside = jnp.any((points < lo) | (points > hi), axis=-1)
 
     def from_hull() -> Array:
-        d = _sq_dists(points, centroids[lookup.hull])  # (n, H)
+        d = squared_distances(points, centroids[lookup.hull])  # (n, H)
         # The lowest index among the nearest: the minimum, then the smallest index at that
         # distance (an argmin over H runs several times slower on a CPU).
         at_min = d == jnp.min(d, axis=-1, keepdims=True)

@@ -58,6 +58,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult
+from qdrl.qd.neighbours import nearest_in_prefix
 from qdrl.qd.repertoires.cells import (
     Slots,
     check_batch,
@@ -114,39 +115,15 @@ class ProximityArchive(Slots):
         """(distances (n, k), slots (n, k), is_member (n, k)) of the k nearest slots, nearest first.
 
         Members fill the slots in order and are never removed, so they are the first
-        `num_filled` slots: the search reads only the blocks of NEIGHBOUR_BLOCK slots that
-        hold members (its cost grows with the archive, not with its capacity), keeping a
-        running k nearest per candidate. Squared distances come from one matrix product per
-        block (|x|^2 - 2 x.y + |y|^2, about the batch's mean, at full float32 precision).
-        On equal distance the lower slot comes first; free slots (+inf) come after every member.
+        `num_filled` slots: the search (`qdrl.qd.neighbours.nearest_in_prefix`) reads only the
+        blocks of NEIGHBOUR_BLOCK slots that hold members, so its cost grows with the archive,
+        not with its capacity. On equal distance the lower slot comes first; free slots (+inf)
+        come after every member.
         """
-        n, k = descriptors.shape[0], min(self.k_neighbors, self.capacity)
-        block = min(NEIGHBOUR_BLOCK, self.capacity)
-        blocks = -(-self.capacity // block)
-        stored = self.descriptors
-        if blocks * block != self.capacity:  # pad to whole blocks (never members)
-            stored = jnp.concatenate([stored, jnp.zeros((blocks * block - self.capacity, self.descriptor_dim))])
-        centre = jnp.mean(descriptors, axis=0)
-        x = descriptors - centre
-        x_sq = jnp.sum(x * x, axis=-1)
-        filled = self.num_filled
-
-        def scan_block(b: Array, best: tuple[Array, Array]) -> tuple[Array, Array]:
-            y = jax.lax.dynamic_slice_in_dim(stored, b * block, block) - centre
-            sq = x_sq[:, None] - 2.0 * jnp.matmul(x, y.T, precision=jax.lax.Precision.HIGHEST) + jnp.sum(y * y, -1)
-            slot = b * block + jnp.arange(block, dtype=jnp.int32)
-            sq = jnp.where(slot[None, :] < filled, jnp.maximum(sq, 0.0), jnp.inf)
-            neg, j = jax.lax.top_k(-sq, min(k, block))
-            # running k nearest: earlier blocks first, so lower slots win ties
-            neg, at = jax.lax.top_k(jnp.concatenate([best[0], neg], 1), k)
-            return neg, jnp.take_along_axis(jnp.concatenate([best[1], slot[j]], 1), at, 1)
-
-        start = (jnp.full((n, k), -jnp.inf, jnp.float32), jnp.full((n, k), self.capacity - 1, jnp.int32))
-        used = jnp.maximum((filled + block - 1) // block, 1)
-        neg, slots = jax.lax.fori_loop(0, used, scan_block, start)
-        member = (neg > -jnp.inf) & self.filled[slots]
-        dist = jnp.sqrt(jnp.where(member, -neg, 0.0))
-        return dist, slots, member
+        k = min(self.k_neighbors, self.capacity)
+        sq, slots = nearest_in_prefix(descriptors, self.descriptors, self.num_filled, k, NEIGHBOUR_BLOCK)
+        member = jnp.isfinite(sq) & self.filled[slots]
+        return jnp.sqrt(jnp.where(member, sq, 0.0)), slots, member
 
     def _scores(self, descriptors: Array, fitnesses: Array | None) -> tuple[Array, Array, Array]:
         """(novelty (n,), local competition (n,) int32, nearest slot (n,)); see `novelty`."""
