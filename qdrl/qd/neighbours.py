@@ -1,18 +1,21 @@
 """Nearest-neighbour primitives shared by the distance-based archives (novelty, DNS, density).
 
-Two forms that XLA compiles much faster on a CPU than their one-line versions:
+Forms that XLA compiles much faster on a CPU than their one-line versions (2-core CPU):
 
 - `squared_distances(points, others)` sums the D per-dimension squares of (n, K) arrays, so
   the long K axis stays minor and vectorised, instead of reducing a minor axis of length D
-  (for D = 2 and 1,564 x 1,564 points: 0.5 ms against 9.4 ms on a 2-core CPU). No
-  cancellation, unlike |x|^2 - 2 x.y + |y|^2.
+  (D = 2, 1,564 x 1,564 points: 0.5 ms against 9.4 ms). No cancellation, unlike
+  |x|^2 - 2 x.y + |y|^2 (which it uses beyond `PER_DIMENSION_MAX` dimensions).
 - `smallest_k(x, k)` is `lax.top_k(-x, k)` negated, computed in two stages: the minimum of
   each group of `group` consecutive entries, the k groups of smallest minimum, then the k
   smallest of those k groups' entries. The k smallest entries of a row lie in those groups
   (a group left out has k groups before it, each with an entry that comes first), so the
   result is exact, ties included (lower index first, as `top_k`). XLA's CPU top_k costs a
-  few ns per entry; a reduction a fraction of a ns: 540 x 4,096 with k = 15 takes 1.3 ms
-  against 6.3 ms.
+  few ns per entry, a minimum a fraction of one: 1,564 x 1,564 with k = 3 takes 2.6 ms
+  against 5.1 ms, 540 x 4,096 with k = 15 3.8 ms against 6.3 ms.
+- `nearest_in_prefix(queries, points, count, k)` is the same two stages over the first
+  `count` rows of a growing archive, block by block: 540 queries against 34,000 members
+  (k = 15) take 12 ms against 57 ms for a running top_k over blocks.
 """
 
 from __future__ import annotations

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 
 from qdrl.qd.base import AddResult
+from qdrl.qd.neighbours import squared_distances
 from qdrl.qd.repertoires.cells import check_batch, valid_candidates
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
@@ -45,8 +46,9 @@ def kde_density(
 
     pyribs' KDE: sum_j phi(|x - b_j| / h) / (count * h), phi the standard normal
     density, whatever D (pyribs divides by h, not h^D: the values rank alike). 0 when
-    `count` is 0. Distances are summed over dimensions of (x - b), no |x|^2 - 2 x.b +
-    |b|^2 expansion, which would cancel for points far from the origin and a small h.
+    `count` is 0. Distances are summed over dimensions of (x - b) (`squared_distances`), no
+    |x|^2 - 2 x.b + |b|^2 expansion, which would cancel for points far from the origin and a
+    small h (beyond 16 dimensions, the expansion about the points' mean).
     """
     points = jnp.asarray(points, jnp.float32)
     buffer = jnp.asarray(buffer, jnp.float32)
@@ -57,10 +59,7 @@ def kde_density(
             f"kde_density: expected points (n, D) and buffer (K, D), got {points.shape} "
             f"and {buffer.shape}"
         )
-    sq = sum(
-        (jnp.square(points[:, i : i + 1] - buffer[None, :, i]) for i in range(points.shape[1])),
-        start=jnp.zeros((), jnp.float32),
-    )
+    sq = squared_distances(points, buffer)
     used = jnp.arange(buffer.shape[0]) < count
     total = jnp.sum(jnp.where(used, jnp.exp(-0.5 * sq / (h * h)), 0.0), axis=1)
     norm = math.sqrt(2.0 * math.pi) * jnp.maximum(count, 1).astype(jnp.float32) * h
