@@ -522,14 +522,19 @@ def skill_trainer_builder(
     return build
 
 
+BENCH_SKILLS = 5  # the skill-discovery study's num_skills
+
+
 @_register("skills")
 def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[dict[str, Any]]:
     """DIAYN, DADS, SMERL (on each) next to SAC: same env, networks, batch and update ratio.
 
     point_maze (and ant, spring, unless `quick`): 16 envs, 16 updates of batch 256 per
-    iteration, (256, 256) networks, 10 skills; the skill models are (256, 256) too, with
-    their configs' other defaults (DADS: the exact marginal over the 10 skills, the model
-    trained on one update in 8).
+    iteration, (256, 256) networks, the skill-discovery study's 5 skills (Chalumeau et al.
+    2023's configs); the skill models are (256, 256) too, with their configs' other defaults
+    (DADS: the exact marginal over the 5 skills, the model trained on one update in 8). DADS's
+    reward evaluates its model once per skill for every sampled transition, so its cost grows
+    with the number of skills (records before 2026-12-06 used 10).
     """
 
     algorithms: tuple[str, ...] = ("sac", "diayn", "dads", "smerl_diayn", "smerl_dads")
@@ -539,7 +544,7 @@ def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[
     records = []
     for env_name, episode_length in envs_:
         for a in algorithms:
-            build = None if a == "sac" else skill_trainer_builder(a, hidden=(256, 256), num_skills=10)
+            build = None if a == "sac" else skill_trainer_builder(a, hidden=(256, 256), num_skills=BENCH_SKILLS)
             records.append(
                 time_trainer(
                     a, env_name, episode_length=episode_length, seed=seed, build=build,
@@ -549,7 +554,8 @@ def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[
     sac = {r["env"]: r["env_steps_per_s"] for r in records if r["algorithm"] == "sac"}
     for r in records:
         r["relative_to_sac"] = round(r["env_steps_per_s"] / sac[r["env"]], 3)
-        if r["algorithm"] != "sac":  # the skill model's schedule and (DADS) alternatives
+        if r["algorithm"] != "sac":  # the skills, the skill model's schedule and (DADS) alternatives
+            r["num_skills"] = BENCH_SKILLS
             skills = (DADSConfig if r["algorithm"].endswith("dads") else DIAYNConfig)()
             r["model_update_every"] = skills.model_update_every
             if isinstance(skills, DADSConfig):
