@@ -16,13 +16,7 @@
 # Environment: PY (python with qdrl importable; default python3), PLATFORM (JAX_PLATFORMS:
 # cuda, or cpu to try the mechanics), QUICK=1 (20 iterations each, to try the mechanics).
 set -u
-out=${1:?usage: gpu_novelty.sh OUT_DIR}
-mkdir -p "$out"
-out=$(cd "$out" && pwd)
-here=$(cd "$(dirname "$0")" && pwd)
-py=${PY:-python3}
-export PYTHONUNBUFFERED=1 JAX_PLATFORMS=${PLATFORM:-cuda}
-log=$out/log.txt
+source "$(dirname "$0")/gpu_env.sh" "$@"
 if [[ ${QUICK:-0} == 1 ]]; then iterations=20; limit=20; else iterations=1000; limit=60; fi
 qdrl=("$py" -c "import sys; from qdrl.cli import main; sys.exit(main(sys.argv[1:]))")
 

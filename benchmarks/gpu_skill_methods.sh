@@ -14,13 +14,7 @@
 # cuda, or cpu to try the mechanics), QUICK=1 (20 s of QDAC, the bench's quick sizes).
 # Output: OUT_DIR/log.txt, OUT_DIR/qdac_summary.json, OUT_DIR/skill_methods.json.
 set -u
-out=${1:?usage: gpu_skill_methods.sh OUT_DIR}
-mkdir -p "$out"
-out=$(cd "$out" && pwd)
-here=$(cd "$(dirname "$0")" && pwd)
-py=${PY:-python3}
-export PYTHONUNBUFFERED=1 JAX_PLATFORMS=${PLATFORM:-cuda}
-log=$out/log.txt
+source "$(dirname "$0")/gpu_env.sh" "$@"
 if [[ ${QUICK:-0} == 1 ]]; then limit=20; quick=(--quick); else limit=180; quick=(); fi
 qdrl=("$py" -c "import sys; from qdrl.cli import main; sys.exit(main(sys.argv[1:]))")
 
