@@ -59,8 +59,8 @@ def smallest_k(x: Array, k: int, group: int = 32) -> tuple[Array, Array]:
     (last axis), ascending, the lower index first among equals: `-top_k(-x, k)` exactly.
 
     `k` and `group` are static. Rows with fewer than k finite entries end with +inf values
-    whose indices are some entries' of +inf (never an out-of-range index); callers tell
-    members by a finite value.
+    at the lowest indices holding +inf, as `top_k` (the padding of the last group comes after
+    at least k real entries, so it is never chosen); callers tell members by a finite value.
     """
     n = x.shape[-1]
     if not 1 <= k <= n:
@@ -78,7 +78,7 @@ def smallest_k(x: Array, k: int, group: int = 32) -> tuple[Array, Array]:
     candidates = jnp.take_along_axis(grouped, chosen[..., None], axis=-2).reshape(*x.shape[:-1], k * group)
     neg, j = jax.lax.top_k(-candidates, k)
     idx = jnp.take_along_axis(chosen, j // group, axis=-1) * group + j % group
-    return -neg, jnp.minimum(idx, n - 1).astype(jnp.int32)
+    return -neg, idx.astype(jnp.int32)
 
 
 def _group_minima(x: Array, group: int) -> Array:

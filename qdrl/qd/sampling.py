@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from qdrl.qd.base import SAMPLES, Evaluation, ScoringFn
 from qdrl.types import Genotype, PRNGKey
 
-__all__ = ["SAMPLES", "sampled_scoring"]
+__all__ = ["sampled_scoring"]
 
 
 def sampled_scoring(scoring_fn: ScoringFn, num_samples: int) -> ScoringFn:

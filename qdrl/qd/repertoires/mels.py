@@ -32,9 +32,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from qdrl.qd.base import AddResult, Evaluation
+from qdrl.qd.base import SAMPLES, AddResult, Evaluation
 from qdrl.qd.repertoires.cells import CellRepertoire, check_batch, flush_subnormals, write_rows
-from qdrl.qd.sampling import SAMPLES
 from qdrl.types import Array, Genotype
 
 __all__ = ["MELSRepertoire", "evaluation_samples", "mean_spread", "mels_repertoire", "sample_cells", "spread"]
