@@ -132,6 +132,11 @@ def representation_network(
     activation = nets.activation(act)
 
     def forward(x: Array) -> Array:
+        # One matrix of rows: XLA's CPU backend differentiates a product of a (2, B, n) stack
+        # through a slower kernel than the same rows as (2B, n) (its weight gradient sums over
+        # two axes): 1.46 against 2.12 ms per step of phi at B = 256, 256x256.
+        lead = x.shape[:-1]
+        x = x.reshape((-1, x.shape[-1]))
         sizes = (*hidden, out_size)
         for i, size in enumerate(sizes):
             with hk.name_scope(f"linear_{i}"):
@@ -142,7 +147,7 @@ def representation_network(
             x = x @ w + b
             if i < len(hidden):
                 x = activation(x)
-        return x
+        return x.reshape((*lead, out_size))
 
     return hk.without_apply_rng(hk.transform_with_state(forward))
 
