@@ -28,17 +28,20 @@ import jax.numpy as jnp
 from qdrl import bench_scaling, bench_skill_methods, compiling, envs
 from qdrl import hlo_profile as profiler
 from qdrl.agents import AGENTS, SACConfig
+from qdrl.agents.base import Agent
 from qdrl.agents.dads import DADSConfig
 from qdrl.agents.diayn import DIAYNConfig
 from qdrl.agents.skill_discovery import make_skill_discovery
 from qdrl.agents.smerl import SMERLConfig
-from qdrl.off_policy import TrainConfig, make_trainer
+from qdrl.off_policy import REPLAY, Storage, TrainConfig, make_trainer, transition_example
 from qdrl.qd.emitters.ga import isoline_emitter
 from qdrl.qd.map_elites import MapElites, QDState
 from qdrl.qd.repertoires import cvt_centroids, cvt_repertoire, grid_repertoire
 from qdrl.tasks import Task, make_task
 
 BenchFn = Callable[..., list[dict[str, Any]]]  # (quick, seed, config) -> records
+# What an off-policy benchmark trains: (the environment it steps, its agent, its storage).
+Parts = tuple[Any, Agent, Storage]
 BENCHES: dict[str, BenchFn] = {}
 
 
@@ -76,7 +79,7 @@ def time_trainer(
     iters_per_chunk: int = 250,
     repeats: int = 2,
     seed: int = 0,
-    build: Callable[[Any, Any], Any] | None = None,
+    parts: Callable[[Any], Parts] | None = None,
     population: int = 1,
     env: Any = None,
 ) -> dict[str, Any]:
@@ -86,10 +89,11 @@ def time_trainer(
     (each its own agent, buffer and environments) trained by one vmapped chunk;
     env steps then count every member's.
 
-    `build(env, train_config) -> Trainer` replaces the default trainer of the
-    `AGENTS` entry `algorithm` (e.g. a skill-discovery agent; `algorithm` then only labels).
-    `env`, when given, is the environment (e.g. a task's, with its state descriptor); `env_name`
-    then only labels.
+    `parts(env) -> (env, agent, storage)` replaces the default agent of the `AGENTS` entry
+    `algorithm` (e.g. a skill-discovery agent on its skill wrapper of `env`; `algorithm` then
+    only labels). `env`, when given, is the environment (e.g. a task's, with its state
+    descriptor); `env_name` then only labels. The record also gives `update_flops`, the
+    arithmetic of one agent update (`update_flops`).
     """
 
     if env is None:
@@ -104,12 +108,14 @@ def time_trainer(
         grad_steps_per_iter=grad_steps_per_iter,
         eval_every=chunk_steps,
     )
-    if build is None:
+    if parts is None:
         config_cls, make_agent = AGENTS[algorithm]
         agent = make_agent(config_cls(hidden=hidden), env.observation_size, env.action_size)
-        trainer = make_trainer(env, agent, cfg)
+        train_env, storage = env, REPLAY
     else:
-        trainer = build(env, cfg)
+        train_env, agent, storage = parts(env)
+    trainer = make_trainer(train_env, agent, cfg, storage)
+    flops = update_flops(train_env, agent, storage, batch_size)
     init, run_chunk = trainer.init, trainer.run_chunk
     if population > 1:
         init = lambda k: jax.vmap(trainer.init)(jax.random.split(k, population))  # noqa: E731
@@ -141,7 +147,24 @@ def time_trainer(
         "wall_s": round(elapsed, 3),
         "env_steps_per_s": round(steps / elapsed, 1),
         "grad_steps_per_s": round(grads / elapsed, 1),
+        "update_flops": flops,
     }
+
+
+def update_flops(env: Any, agent: Agent, storage: Storage, batch_size: int) -> float:
+    """Floating-point operations of one `agent.update` on a batch of `batch_size` from
+    `storage`, as XLA's cost analysis of the compiled update counts them (a measure of its
+    arithmetic that does not depend on the machine's load). A `lax.cond` counts as if its
+    costlier branch ran: a skill model trained on one update in n (DADS's 8) counts on every
+    update, so its share is then an upper bound."""
+    key = jax.random.PRNGKey(0)
+    batch = storage.sample(storage.init(transition_example(env), batch_size, 1), key, batch_size)
+    cost = jax.jit(agent.update).lower(agent.init(key), batch, key).compile().cost_analysis()
+    if isinstance(cost, list):  # older jax releases give one dict per program
+        cost = cost[0]
+    if not cost or "flops" not in cost:
+        raise RuntimeError("XLA's cost analysis gave no flops for the agent's update")
+    return float(cost["flops"])
 
 
 @_register("pbt")
@@ -504,22 +527,22 @@ def run_bench(
     return record
 
 
-def skill_trainer_builder(
+def skill_parts(
     algorithm: str, hidden: tuple[int, ...] = (256, 256), num_skills: int = 10
-) -> Callable[[Any, TrainConfig], Any]:
-    """`(env, train_config) -> Trainer` of a skill-discovery `algorithm` ("diayn", "dads",
+) -> Callable[[Any], Parts]:
+    """`env -> (skill env, agent, storage)` of a skill-discovery `algorithm` ("diayn", "dads",
     "smerl_diayn", "smerl_dads") with default settings; SAC and the skill model both use `hidden`."""
     if algorithm not in ("diayn", "dads", "smerl_diayn", "smerl_dads"):
         raise ValueError(f"unknown skill-discovery algorithm {algorithm!r}")
     smerl = SMERLConfig() if algorithm.startswith("smerl") else None
     cls = DADSConfig if algorithm.endswith("dads") else DIAYNConfig
 
-    def build(env: Any, config: TrainConfig) -> Any:
+    def parts(env: Any) -> Parts:
         skills = cls(num_skills=num_skills, hidden=hidden, extrinsic_scale=0.0 if smerl is None else 1.0)
         sd = make_skill_discovery(env, SACConfig(hidden=hidden), skills, smerl)
-        return make_trainer(sd.env, sd.agent, config, sd.storage)
+        return sd.env, sd.agent, sd.storage
 
-    return build
+    return parts
 
 
 BENCH_SKILLS = 5  # the skill-discovery study's num_skills
@@ -544,16 +567,17 @@ def bench_skills(quick: bool, seed: int = 0, config: str | None = None) -> list[
     records = []
     for env_name, episode_length in envs_:
         for a in algorithms:
-            build = None if a == "sac" else skill_trainer_builder(a, hidden=(256, 256), num_skills=BENCH_SKILLS)
+            parts = None if a == "sac" else skill_parts(a, hidden=(256, 256), num_skills=BENCH_SKILLS)
             records.append(
                 time_trainer(
-                    a, env_name, episode_length=episode_length, seed=seed, build=build,
+                    a, env_name, episode_length=episode_length, seed=seed, parts=parts,
                     iters_per_chunk=50 if quick else 250, repeats=1 if quick else 2,
                 )
             )
-    sac = {r["env"]: r["env_steps_per_s"] for r in records if r["algorithm"] == "sac"}
+    sac = {r["env"]: r for r in records if r["algorithm"] == "sac"}
     for r in records:
-        r["relative_to_sac"] = round(r["env_steps_per_s"] / sac[r["env"]], 3)
+        r["relative_to_sac"] = round(r["env_steps_per_s"] / sac[r["env"]]["env_steps_per_s"], 3)
+        r["sac_flops_share"] = round(sac[r["env"]]["update_flops"] / r["update_flops"], 3)
         if r["algorithm"] != "sac":  # the skills, the skill model's schedule and (DADS) alternatives
             r["num_skills"] = BENCH_SKILLS
             skills = (DADSConfig if r["algorithm"].endswith("dads") else DIAYNConfig)()

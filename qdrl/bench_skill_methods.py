@@ -17,9 +17,11 @@ benchmark also times each method beside SAC at its `_cpu` spec's environments an
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
+from qdrl.agents.base import Agent
 from qdrl.agents.diayn import DIAYNConfig
 from qdrl.agents.domino import DOMiNOConfig
 from qdrl.agents.metra import METRAConfig
@@ -29,11 +31,11 @@ from qdrl.agents.skill_discovery import DiscreteSkills, SkillConfig, make_skill_
 from qdrl.agents.smerl import SMERLConfig
 from qdrl.agents.uvfa import make_uvfa
 from qdrl.envs.skills import ContinuousSkillEnv
-from qdrl.off_policy import TrainConfig, make_trainer
+from qdrl.off_policy import REPLAY, Storage
 from qdrl.tasks.brax_features import FEATURE_TASKS, feature_space
 from qdrl.tasks.brax_qd import ant_omni
 
-__all__ = ["bench_skill_methods", "method_trainer_builder"]
+__all__ = ["bench_skill_methods", "method_parts"]
 
 HIDDEN = (256, 256)
 # (environments, updates per iteration) of the `_cpu` specs: qdac_walker2d_feet_contact_cpu,
@@ -43,40 +45,36 @@ FEATURE_METHODS = ("sac", "qdac", "uvfa", "domino", "smerl_diayn")
 POSITION_METHODS = ("sac", "metra", "lsd", "diayn")
 
 
-def method_trainer_builder(algorithm: str, task: str) -> Callable[[Any, TrainConfig], Any]:
-    """`(env, train_config) -> Trainer` of `algorithm` with its defaults at 256x256 on `env`, the
-    environment of `task` (a feature task for QDAC and UVFA)."""
+def method_parts(algorithm: str, task: str, env: Any) -> tuple[Any, Agent, Storage]:
+    """The environment `algorithm` trains on (a skill wrapper of `env`, the environment of
+    `task`), its agent with its defaults at 256x256, and where its transitions go."""
     sac = SACConfig(hidden=HIDDEN)
-
-    def build(env: Any, config: TrainConfig) -> Any:
-        if algorithm == "sac":
-            return make_trainer(env, make_sac(sac, env.observation_size, env.action_size), config)
-        if algorithm in ("qdac", "uvfa"):
-            space = feature_space(task)
-            if space is None:
-                raise ValueError(f"{algorithm}: expected a feature task, got {task!r}")
-            skill_env = ContinuousSkillEnv(env, space)
-            obs, act = skill_env.observation_size, skill_env.action_size
-            agent = make_qdac(sac, QDACConfig(), space, obs, act) if algorithm == "qdac" else make_uvfa(
-                make_sac(sac, obs, act), space
-            )
-            return make_trainer(skill_env, agent, config)
-        skills: SkillConfig
-        smerl, domino = None, None
-        if algorithm == "domino":
-            skills, domino = DiscreteSkills(10), DOMiNOConfig()
-        elif algorithm == "smerl_diayn":
-            skills, smerl = DIAYNConfig(num_skills=2, continuous=True, hidden=HIDDEN, extrinsic_scale=1.0), SMERLConfig()
-        elif algorithm in ("metra", "lsd"):
-            skills = METRAConfig(hidden=HIDDEN, model_input="descriptor", lsd=algorithm == "lsd")
-        elif algorithm == "diayn":
-            skills = DIAYNConfig(num_skills=10, hidden=HIDDEN, model_input="descriptor")
-        else:
-            raise ValueError(f"unknown skill method {algorithm!r}")
-        sd = make_skill_discovery(env, sac, skills, smerl, domino=domino)
-        return make_trainer(sd.env, sd.agent, config, sd.storage)
-
-    return build
+    if algorithm == "sac":
+        return env, make_sac(sac, env.observation_size, env.action_size), REPLAY
+    if algorithm in ("qdac", "uvfa"):
+        space = feature_space(task)
+        if space is None:
+            raise ValueError(f"{algorithm}: expected a feature task, got {task!r}")
+        skill_env = ContinuousSkillEnv(env, space)
+        obs, act = skill_env.observation_size, skill_env.action_size
+        agent = make_qdac(sac, QDACConfig(), space, obs, act) if algorithm == "qdac" else make_uvfa(
+            make_sac(sac, obs, act), space
+        )
+        return skill_env, agent, REPLAY
+    skills: SkillConfig
+    smerl, domino = None, None
+    if algorithm == "domino":
+        skills, domino = DiscreteSkills(10), DOMiNOConfig()
+    elif algorithm == "smerl_diayn":
+        skills, smerl = DIAYNConfig(num_skills=2, continuous=True, hidden=HIDDEN, extrinsic_scale=1.0), SMERLConfig()
+    elif algorithm in ("metra", "lsd"):
+        skills = METRAConfig(hidden=HIDDEN, model_input="descriptor", lsd=algorithm == "lsd")
+    elif algorithm == "diayn":
+        skills = DIAYNConfig(num_skills=10, hidden=HIDDEN, model_input="descriptor")
+    else:
+        raise ValueError(f"unknown skill method {algorithm!r}")
+    sd = make_skill_discovery(env, sac, skills, smerl, domino=domino)
+    return sd.env, sd.agent, sd.storage
 
 
 def bench_skill_methods(
@@ -102,7 +100,7 @@ def bench_skill_methods(
         for label, a, n, g in timings:
             iters = (20 if quick else 200) * 16 // n
             record = time_trainer(
-                label, task, env=env, seed=seed, build=method_trainer_builder(a, task),
+                label, task, env=env, seed=seed, parts=functools.partial(method_parts, a, task),
                 iters_per_chunk=iters, repeats=1 if quick else 2, num_envs=n, grad_steps_per_iter=g,
             )
             records.append(record)
@@ -111,4 +109,7 @@ def bench_skill_methods(
         sac_label = label if label.startswith("sac") else "sac" if "@" not in label else f"sac@{label.split('@')[0]}-spec"
         sac = next(x for x in records if x["algorithm"] == sac_label and x["env"] == r["env"])
         r["relative_to_sac"] = round(r["env_steps_per_s"] / sac["env_steps_per_s"], 3)
+        # SAC's update's share of the method's arithmetic: the ratio one update per env step
+        # would reach if time were arithmetic alone (the env step makes the ratio higher).
+        r["sac_flops_share"] = round(sac["update_flops"] / r["update_flops"], 3)
     return records

@@ -129,7 +129,8 @@ class Trainer(NamedTuple):
     episodes: Callable[..., Episodes]
 
 
-def _transition_example(env: Env) -> Transition:
+def transition_example(env: Env) -> Transition:
+    """A zero transition of `env`'s shapes (what a buffer of its transitions is built from)."""
     obs = jnp.zeros((env.observation_size,), jnp.float32)
     desc = jnp.zeros((env.descriptor_size,), jnp.float32)
     scalar = jnp.zeros((), jnp.float32)
@@ -156,7 +157,7 @@ def make_trainer(
         agent_key, env_key, key = jax.random.split(key, 3)
         return place.place(TrainState(
             agent=agent.init(agent_key),
-            buffer=storage.init(_transition_example(env), config.buffer_size, config.num_envs),
+            buffer=storage.init(transition_example(env), config.buffer_size, config.num_envs),
             env=reset_batch(env, env_key, config.num_envs),
             key=key,
             env_steps=jnp.zeros((), jnp.int32),

@@ -177,18 +177,36 @@ def test_qdac_learns_to_reach_its_targets_on_the_point_mass(tmp_path: Path) -> N
 def test_the_throughput_bench_builds_every_method_beside_sac() -> None:
     """`qdrl bench skill_methods` (timed as a benchmark, not here): each method's trainer builds on
     its paper's environment, with the same loop settings as SAC's."""
-    from qdrl.bench_skill_methods import FEATURE_METHODS, POSITION_METHODS, method_trainer_builder
-    from qdrl.off_policy import TrainConfig
+    from qdrl.bench_skill_methods import FEATURE_METHODS, POSITION_METHODS, method_parts
+    from qdrl.off_policy import TrainConfig, make_trainer
     from qdrl.tasks import make_task
 
     config = TrainConfig(total_env_steps=64, num_envs=4, batch_size=8, buffer_size=64, eval_every=32)
     for task, methods in (("walker2d_feet_contact", FEATURE_METHODS), ("ant_omni", POSITION_METHODS)):
         env = make_task(task, episode_length=5).env
         for method in methods:
-            state = jax.eval_shape(method_trainer_builder(method, task)(env, config).init, jax.random.PRNGKey(0))
+            train_env, agent, storage = method_parts(method, task, env)
+            trainer = make_trainer(train_env, agent, config, storage)
+            state = jax.eval_shape(trainer.init, jax.random.PRNGKey(0))
             assert state.env.obs.shape[0] == 4, method
     with pytest.raises(ValueError, match="unknown skill method 'dqn'"):
-        method_trainer_builder("dqn", "ant_omni")(env, config)
+        method_parts("dqn", "ant_omni", env)
+
+
+def test_update_flops_count_each_methods_arithmetic() -> None:
+    """The benchmark's `update_flops`: QDAC's update (two twin critics, the policy and lambda's
+    network on its batch and as many relabelled transitions) is about 3.9x SAC's arithmetic, and
+    twice the batch doubles SAC's."""
+    from qdrl.bench import update_flops
+    from qdrl.bench_skill_methods import method_parts
+    from qdrl.tasks import make_task
+
+    env = make_task("walker2d_feet_contact", episode_length=5).env
+    sac = update_flops(*method_parts("sac", "walker2d_feet_contact", env), 256)
+    qdac = update_flops(*method_parts("qdac", "walker2d_feet_contact", env), 256)
+    assert 3.5 < qdac / sac < 4.3, qdac / sac
+    double = update_flops(*method_parts("sac", "walker2d_feet_contact", env), 512)
+    assert 1.9 < double / sac < 2.1, double / sac
 
 
 def test_qd_runs_on_a_feature_task_read_their_repertoire_as_skills() -> None:
