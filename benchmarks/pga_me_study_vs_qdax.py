@@ -44,12 +44,12 @@ from pathlib import Path
 from typing import Any
 
 from compare_qdax_map_elites import _json_from
+from table2_vs_qdax import BATCH, qdax_study_command
 
 HERE = Path(__file__).resolve().parent
 TASKS = ("halfcheetah_uni", "walker2d_uni")
 ALGORITHMS = ("map_elites", "pga_me")
 LIBRARIES = ("qdrl", "qdax")
-BATCH = {"map_elites": 1000, "pga_me": 100}
 NAMES = {"map_elites": "MAP-Elites", "pga_me": "PGA-ME", "qdrl": "qdrl", "qdax": "QDax 0.5.0"}
 FIGURES = ("qd_score", "coverage", "max_fitness")
 LOG_EVALUATIONS = 1000
@@ -97,12 +97,7 @@ def qdrl_run(algorithm: str, task: str, seed: int, evaluations: int, env: dict[s
 def qdax_run(python: str, algorithm: str, task: str, seed: int, evaluations: int,
              env: dict[str, str]) -> dict[str, Any]:
     """QDax 0.5.0's run of the same settings (`benchmarks/qdax_pga_me.py`), in its own process."""
-    cmd = [python, str(HERE / "qdax_pga_me.py"), "--algorithm", algorithm, "--task", task,
-           "--seed", str(seed), "--episode-length", "250", "--hidden", "256,256", "--activation", "relu",
-           "--batch", str(BATCH[algorithm]), "--iterations", str(iterations(algorithm, evaluations)),
-           "--log-every", "1",
-           "--cells", "1024", "--cvt-samples", "50000",
-           "--critic-steps", "300", "--pg-steps", "100", "--train-batch", "256", "--buffer", "1000000"]
+    cmd = [*qdax_study_command(python, algorithm, task, seed, iterations(algorithm, evaluations)), "--log-every", "1"]
     proc, wall = _process(cmd, env)
     rec = _json_from(proc.stdout)
     if rec["evaluations"] != evaluations:

@@ -89,14 +89,19 @@ def qdrl_run(algorithm: str, task: str, seed: int, skill_log_steps: int, skill_l
     }
 
 
+def qdax_study_command(python: str, algorithm: str, task: str, seed: int, iterations: int) -> list[str]:
+    """`benchmarks/qdax_pga_me.py` at the study's settings: MAP-Elites or PGA-ME on `task`, QDax 0.5.0."""
+    return [python, str(HERE / "qdax_pga_me.py"), "--algorithm", algorithm, "--task", task,
+            "--seed", str(seed), "--episode-length", "250", "--hidden", "256,256", "--activation", "relu",
+            "--batch", str(BATCH[algorithm]), "--iterations", str(iterations), "--cells", "1024",
+            "--cvt-samples", "50000", "--critic-steps", "300", "--pg-steps", "100", "--train-batch", "256",
+            "--buffer", "1000000"]
+
+
 def qdax_run(python: str, algorithm: str, task: str, seed: int, skill_iterations: int,
              env: dict[str, str]) -> dict[str, Any]:
     if algorithm in QD_ITERATIONS:
-        cmd = [python, str(HERE / "qdax_pga_me.py"), "--algorithm", algorithm, "--task", task,
-               "--seed", str(seed), "--episode-length", "250", "--hidden", "256,256", "--activation", "relu",
-               "--batch", "1000" if algorithm == "map_elites" else "100",
-               "--iterations", str(QD_ITERATIONS[algorithm]), "--cells", "1024", "--cvt-samples", "50000",
-               "--critic-steps", "300", "--pg-steps", "100", "--train-batch", "256", "--buffer", "1000000"]
+        cmd = qdax_study_command(python, algorithm, task, seed, QD_ITERATIONS[algorithm])
     else:
         cmd = [python, str(HERE / "qdax_skills.py"), "--algorithm", algorithm, "--task", task,
                "--seed", str(seed), "--iterations", str(skill_iterations)]
