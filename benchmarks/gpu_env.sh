@@ -1,4 +1,4 @@
-# The preamble of the one-script GPU measurements (gpu_novelty.sh, gpu_skill_methods.sh), sourced
+# The preamble of the one-script GPU measurements (gpu_novelty.sh, gpu_skill_methods.sh, gpu_seed_benchmark.sh), sourced
 # with the script's arguments: makes OUT_DIR ($1) and sets `out` (its absolute path), `here`
 # (benchmarks/), `py` ($PY or python3), `log` (OUT_DIR/log.txt), and exports JAX_PLATFORMS
 # ($PLATFORM or cuda) and PYTHONUNBUFFERED.

@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     runs: list[dict[str, Any]] = json.loads(out.read_text())["runs"] if out.exists() else []
     libraries = LIBRARIES if args.qdax_python else ("qdrl",)
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
-    env["JAX_PLATFORMS"] = "cpu"
+    env["JAX_PLATFORMS"] = os.environ.get("JAX_PLATFORMS", "cpu")  # the CPU unless told (gpu_seed_benchmark.sh)
 
     def write() -> dict[str, Any]:
         summary = summarise(runs, args.evaluations)

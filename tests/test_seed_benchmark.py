@@ -4,6 +4,7 @@ study's settings, CVT passive archives shared with MAP-Elites, the fitness-range
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -121,3 +122,26 @@ def test_policy_activation_is_the_tasks_hidden_activation() -> None:
     assert not np.allclose(np.asarray(a_relu), np.asarray(a_tanh))
     with pytest.raises(ConfigError, match="policy_activation"):
         check_spec({**_spec("map_elites_point_maze_cpu"), "task": {"name": "point_maze", "policy_activation": "nope"}})
+
+
+def test_the_record_merges_runs_of_earlier_sessions(tmp_path: Path) -> None:
+    spec = importlib.util.spec_from_file_location("seed_benchmark_record", ROOT / "benchmarks" / "seed_benchmark_record.py")
+    assert spec is not None and spec.loader is not None
+    record = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(record)
+    for task, algorithm, qd in (("ant_omni", "pga_me", 7.0), ("walker2d_uni", "map_elites", 3.0)):
+        run = tmp_path / "suite" / task / algorithm / "seed_0"
+        run.mkdir(parents=True)
+        (run / "summary.json").write_text(f'{{"env_steps": 100, "qd_score": {qd}, "stopped_by": "time_limit"}}')
+    out = tmp_path / "record.json"
+    old = {"suite": "seed 0, 600 s", "machine": {"cpus": 2, "jax": "x"},
+           "runs": [{"task": "ant_omni", "algorithm": "pga_me", "seed": 0, "qd_score": 5.0},
+                    {"task": "ant_maze", "algorithm": "map_elites", "seed": 0, "qd_score": 1.0}]}
+    out.write_text(json.dumps(old))
+    assert record.main([str(tmp_path / "suite"), "--out", str(out), "--merge"]) == 0
+    merged = json.loads(out.read_text())
+    assert merged["suite"] == "seed 0, 600 s" and merged["machine"] == old["machine"]
+    assert [(r["task"], r["algorithm"], r["qd_score"]) for r in merged["runs"]] == [
+        ("ant_maze", "map_elites", 1.0), ("ant_omni", "pga_me", 7.0), ("walker2d_uni", "map_elites", 3.0)]
+    assert record.main([str(tmp_path / "suite"), "--out", str(out)]) == 0  # without --merge: the folder only
+    assert len(json.loads(out.read_text())["runs"]) == 2
