@@ -25,16 +25,16 @@ from qdrl.qd.repertoires.passive import feed
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _generator():  # benchmarks/ is no package: load the script as a module
-    spec = importlib.util.spec_from_file_location("seed_benchmark_specs", ROOT / "benchmarks" / "seed_benchmark_specs.py")
+def _script(name: str):  # benchmarks/ is no package: load the script as a module
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("seed_benchmark_specs", module)
+    sys.modules.setdefault(name, module)
     spec.loader.exec_module(module)
     return module
 
 
-GEN = _generator()
+GEN = _script("seed_benchmark_specs")
 NAMES = specs.spec_names("seed_benchmark")
 
 
@@ -125,10 +125,7 @@ def test_policy_activation_is_the_tasks_hidden_activation() -> None:
 
 
 def test_the_record_merges_runs_of_earlier_sessions(tmp_path: Path) -> None:
-    spec = importlib.util.spec_from_file_location("seed_benchmark_record", ROOT / "benchmarks" / "seed_benchmark_record.py")
-    assert spec is not None and spec.loader is not None
-    record = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(record)
+    record = _script("seed_benchmark_record")
     for task, algorithm, qd in (("ant_omni", "pga_me", 7.0), ("walker2d_uni", "map_elites", 3.0)):
         run = tmp_path / "suite" / task / algorithm / "seed_0"
         run.mkdir(parents=True)
