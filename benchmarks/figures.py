@@ -187,6 +187,12 @@ FIGURES: tuple[Figure, ...] = (
           ("qd_rl_point_maze", ("point_maze",)),
       )
       for task in tasks for x_key in ("evaluations", "wall_s")),
+    # The skill-discovery benchmark (docs/skill-discovery-benchmark.md)
+    Figure("docs/seed_benchmark_cpu.png", "seed_benchmark_record:plot",
+           (f"{RESULTS}/seed_benchmark_cpu_seed0.json",),
+           recorded_by="qdrl suite run benchmarks/suites/seed_benchmark_cpu_seed0.toml --out DIR; "
+                       "python benchmarks/seed_benchmark_record.py DIR --out "
+                       "benchmarks/results/seed_benchmark_cpu_seed0.json --merge"),
     Figure("docs/qdax_pga_me_vs_map_elites_halfcheetah_uni_evaluations.png", "qdax_pga_me_vs_map_elites:plot",
            (f"{RESULTS}/qdax_pga_me_vs_map_elites.json", f"{RESULTS}/pga_me_vs_map_elites_1000.json"),
            recorded_by="python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python QDAX_VENV/bin/python "

@@ -126,6 +126,24 @@ def test_a_spec_of_another_task_or_a_bad_value_is_named(tmp_path: Path) -> None:
         suites.load_suite(path, tmp_path / "out")
 
 
+def test_the_recorded_benchmark_suites_are_slices_of_the_packaged_one(tmp_path: Path) -> None:
+    """benchmarks/suites/*.toml: each loads, and one that names a packaged suite runs only that
+    suite's runs (same spec, same budget, same folder), so their results share one folder."""
+    root = Path(__file__).resolve().parents[1] / "benchmarks" / "suites"
+    paths = sorted(root.glob("*.toml"))
+    assert {"seed_benchmark_cpu_seed0.toml", "seed_benchmark_cpu_seed1.toml"} <= {p.name for p in paths}
+    for path in paths:
+        part = suites.load_suite(path, tmp_path)  # every one loads: its specs exist, its values are valid
+        if part.config.name not in suites.suite_names():
+            continue
+        whole = suites.load_suite(part.config.name, tmp_path)
+        assert part.config.time_limit_s == whole.config.time_limit_s
+        packaged = {(e.task, e.algorithm, e.seed): e.spec.name for e in whole.entries}
+        for e in part.entries:
+            assert packaged.get((e.task, e.algorithm, e.seed)) == e.spec.name, (path.name, e.task, e.algorithm, e.seed)
+            assert e.out == tmp_path / e.task / e.algorithm / f"seed_{e.seed}"
+
+
 def test_the_packaged_suites_name_only_specs_that_exist() -> None:
     assert suites.suite_names() == ["dns_walker2d", "metra_cpu", "qdac_cpu", "seed_benchmark", "seed_benchmark_cpu"]
     full, cpu = suites.load_suite("seed_benchmark"), suites.load_suite("seed_benchmark_cpu")
