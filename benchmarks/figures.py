@@ -189,10 +189,10 @@ FIGURES: tuple[Figure, ...] = (
       for task in tasks for x_key in ("evaluations", "wall_s")),
     # The skill-discovery benchmark (docs/skill-discovery-benchmark.md)
     Figure("docs/seed_benchmark_cpu.png", "seed_benchmark_record:plot",
-           (f"{RESULTS}/seed_benchmark_cpu_seed0.json",),
-           recorded_by="qdrl suite run benchmarks/suites/seed_benchmark_cpu_seed0.toml --out DIR; "
+           (f"{RESULTS}/seed_benchmark_cpu_seed0.json", f"{RESULTS}/seed_benchmark_cpu_seed1.json"),
+           recorded_by="qdrl suite run benchmarks/suites/seed_benchmark_cpu_seed{0,1}.toml --out DIR; "
                        "python benchmarks/seed_benchmark_record.py DIR --out "
-                       "benchmarks/results/seed_benchmark_cpu_seed0.json --merge"),
+                       "benchmarks/results/seed_benchmark_cpu_seed{0,1}.json --merge (one seed's runs each)"),
     Figure("docs/qdax_pga_me_vs_map_elites_halfcheetah_uni_evaluations.png", "qdax_pga_me_vs_map_elites:plot",
            (f"{RESULTS}/qdax_pga_me_vs_map_elites.json", f"{RESULTS}/pga_me_vs_map_elites_1000.json"),
            recorded_by="python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python QDAX_VENV/bin/python "
