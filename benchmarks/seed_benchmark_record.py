@@ -76,12 +76,14 @@ def _fitness_range(task: str) -> tuple[float, float]:
 
 def plot(*records: dict[str, Any], path: str | Path) -> Path:
     """One panel per metric (coverage and range QD score on a log scale, max fitness on the study's
-    0-1 scale of each task's fitness range), tasks along
-    x, one marker per run and a bar at the mean over its seeds per algorithm: the records' final
-    figures side by side (several records, for example one per seed, are pooled)."""
-    from qdrl.plotting._common import _figure, _save
+    0-1 scale of each task's fitness range), tasks along x, one marker per run and a bar at the
+    mean over its seeds per algorithm: the records' final figures side by side (several records,
+    for example one per seed, are pooled)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     runs = [r for record in records for r in record["runs"]]
+
     def order(names: set[str], first: tuple[str, ...]) -> list[str]:
         return [n for n in first if n in names] + sorted(names - set(first))
 
@@ -90,7 +92,8 @@ def plot(*records: dict[str, Any], path: str | Path) -> Path:
     algorithms = order({r["algorithm"] for r in runs}, ("map_elites", "pga_me", "smerl_diayn", "diayn", "dads",
                                                         "smerl_dads"))
     width = 0.8 / len(algorithms)
-    fig = _figure(max(8.0, 1.6 * len(tasks)), 3.2 * len(PLOT_METRICS))
+    fig = Figure(figsize=(max(8.0, 1.6 * len(tasks)), 3.2 * len(PLOT_METRICS)), layout="constrained")
+    FigureCanvasAgg(fig)
     axes = fig.subplots(len(PLOT_METRICS), 1)
     for ax, (key, label) in zip(axes, PLOT_METRICS, strict=True):
         for a, algorithm in enumerate(algorithms):
@@ -114,8 +117,12 @@ def plot(*records: dict[str, Any], path: str | Path) -> Path:
     axes[0].legend(unique.values(), unique.keys(), fontsize=7, ncols=len(unique), loc="lower center",
                    bbox_to_anchor=(0.5, 1.0))
     seeds = sorted({r["seed"] for r in runs})
-    return _save(fig, path, f"seed_benchmark_cpu, 600 s a run: final figures (seed{'s' * (len(seeds) > 1)} "
-                            f"{', '.join(map(str, seeds))}; markers: runs, bars: their mean)")
+    fig.suptitle(f"seed_benchmark_cpu, 600 s a run: final figures (seed{'s' * (len(seeds) > 1)} "
+                 f"{', '.join(map(str, seeds))}; markers: runs, bars: their mean)")
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
