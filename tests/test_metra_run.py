@@ -98,6 +98,7 @@ def test_every_spec_builds_and_the_suite_names_them() -> None:
     } | {"diayn_ant_omni", "dads_ant_omni"}
     for path in SPECS:
         spec = load_toml(path)
+        spec.setdefault("archive", {}).update(num_centroids=8, cvt_samples=100)  # not the packaged archive's k-means
         run_, _, _ = build_run(spec)
         assert run_.task in ("ant_omni", "halfcheetah_omni") and spec["env"]["episode_length"] == 200
         # METRA's settings: 2-D unit vectors on the ant, 16 discrete skills on the cheetah
@@ -131,10 +132,14 @@ def test_every_cpu_spec_runs_a_tiny_version(tmp_path: Path, name: str) -> None:
     assert len(episodes.query("log_point == 1")) == spec["train"]["num_eval_envs"]
 
 
+@pytest.mark.slow
 def test_metra_spreads_its_skills_in_the_point_maze(tmp_path: Path) -> None:
     """16 directions after 10,000 steps: the skills' final positions spread over the maze (mean
     distance to their centroid above 0.7; the untrained policy's is 0.33), each step within
-    METRA's constraint."""
+    METRA's constraint.
+
+    A learning run, so `-m slow`; the 2-core record of METRA against DIAYN, DADS and LSD on
+    ant_omni and halfcheetah_omni is benchmarks/results/metra_cpu_*.json."""
     spec = tiny_spec("metra")
     spec["env"]["episode_length"] = 50
     spec["agent"].update(hidden=[64, 64], init_alpha=0.01)
