@@ -149,13 +149,19 @@ def test_every_spec_names_its_algorithm_and_task_and_builds() -> None:
         for p in (ROOT / "agents").glob(pattern)
     )
     assert len(baselines) == 12
+    built: set[tuple[str, str]] = set()
     for path in [*SPECS, *baselines]:
         spec = load_toml(path)
         algorithm = spec["experiment"]["algorithm"]
         assert path.stem.startswith(algorithm), path
         assert spec["env"]["episode_length"] == 1000, path
         assert path.stem[len(algorithm) + 1 :].removesuffix("_cpu") == spec["env"]["task"], path
-        # the passive archive's 1024 cells would take its k-means; every other section as packaged
+        # One spec of each method and task is built (a `_cpu` variant differs in sizes only, which
+        # test_spec_schema checks for every packaged spec), with a small passive archive (its 1024
+        # cells would take a k-means); every other section as packaged.
+        if (algorithm, spec["env"]["task"]) in built:
+            continue
+        built.add((algorithm, spec["env"]["task"]))
         spec.setdefault("archive", {}).update(num_centroids=8, cvt_samples=100)
         run_, _, _ = build_run(spec)
         assert run_.task == spec["env"]["task"]
@@ -180,9 +186,18 @@ def test_qdac_learns_to_reach_its_targets_on_the_point_mass(tmp_path: Path) -> N
     assert rows.distance_to_skill.iloc[-1] < 0.35, rows.distance_to_skill.tolist()
 
 
+def test_the_throughput_bench_refuses_an_unknown_method() -> None:
+    from qdrl.bench_skill_methods import method_parts
+    from qdrl.tasks import make_task
+
+    with pytest.raises(ValueError, match="unknown skill method 'dqn'"):
+        method_parts("dqn", "ant_omni", make_task("ant_omni", episode_length=5).env)
+
+
+@pytest.mark.slow
 def test_the_throughput_bench_builds_every_method_beside_sac() -> None:
-    """`qdrl bench skill_methods` (timed as a benchmark, not here): each method's trainer builds on
-    its paper's environment, with the same loop settings as SAC's."""
+    """`qdrl bench skill_methods` (a benchmark, `-m slow` like this check of it): each method's
+    trainer builds on its paper's environment, with the same loop settings as SAC's."""
     from qdrl.bench_skill_methods import FEATURE_METHODS, POSITION_METHODS, method_parts
     from qdrl.off_policy import TrainConfig, make_trainer
     from qdrl.tasks import make_task
@@ -195,10 +210,9 @@ def test_the_throughput_bench_builds_every_method_beside_sac() -> None:
             trainer = make_trainer(train_env, agent, config, storage)
             state = jax.eval_shape(trainer.init, jax.random.PRNGKey(0))
             assert state.env.obs.shape[0] == 4, method
-    with pytest.raises(ValueError, match="unknown skill method 'dqn'"):
-        method_parts("dqn", "ant_omni", env)
 
 
+@pytest.mark.slow  # the throughput benchmark's analysis (docs/algorithms): compiles three updates
 def test_update_flops_count_each_methods_arithmetic() -> None:
     """The benchmark's `update_flops`: QDAC's update (two twin critics, the policy and lambda's
     network on its batch and as many relabelled transitions) is about 3.9x SAC's arithmetic, and

@@ -198,8 +198,9 @@ def test_feature_spaces() -> None:
         FEATURE_SPACES["humanoid_jump"].low = (1.0,)  # type: ignore[misc]
 
 
-# The humanoid compiles slowly: one of its tasks in the default run, the others with -m slow.
-SLOW = ("humanoid_feet_contact", "humanoid_jump")
+# The humanoid compiles slowly: its features are checked in the default run (test_humanoid_features),
+# its tasks with -m slow.
+SLOW = ("humanoid_angle", "humanoid_feet_contact", "humanoid_jump")
 
 
 @pytest.mark.parametrize(
