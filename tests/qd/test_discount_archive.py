@@ -162,7 +162,10 @@ def test_status_and_value_match_a_numpy_reference(small: DiscountArchive) -> Non
     np.testing.assert_allclose(got_discount, discount, rtol=1e-5, atol=1e-5)
     valid = ~np.isnan(fitnesses)
     want_value = np.where(valid, fitnesses - got_discount, -np.inf)
-    np.testing.assert_allclose(np.asarray(result.value), want_value, rtol=1e-6)
+    # atol: under one float32 ulp of the discount (|f_theta| < 1 here). jax 0.10's XLA drops
+    # the barrier and may fuse the model's last multiply-add into the subtraction (one
+    # rounding fewer): the tie's value is then 1.5e-8, not 0; its status stays 0.
+    np.testing.assert_allclose(np.asarray(result.value), want_value, rtol=1e-6, atol=6e-8)
     np.testing.assert_array_equal(np.asarray(result.improvement), np.asarray(result.value))
     want_status = np.where(valid & (fitnesses > got_discount), 2, 0)
     np.testing.assert_array_equal(np.asarray(result.status), want_status)

@@ -171,6 +171,8 @@ class DiscountArchive:
         valid = valid_candidates(descriptors, fitnesses)
         # One rounding of the discount for status, value, target and info: without the
         # barrier XLA may fuse (and round) its last multiply-add into each consumer apart.
+        # jax 0.10's XLA drops the barrier: there `value` may be f - f_theta(d) rounded once
+        # (within an ulp of f - info["discount"]); status and info still agree.
         discount = jax.lax.optimization_barrier(self.discount(descriptors))
         beats = valid & (fitnesses > discount)
         alpha = self.learning_rate
