@@ -414,14 +414,37 @@ class BraxEnv(Env):
         self._reward: RewardFn | None = REWARDS[reward](name) if isinstance(reward, str) else reward
 
     def _reset(self, key: PRNGKey) -> tuple[Any, Array, Array]:
-        state = _strong(self.brax_env.reset(key))
-        return state, state.obs, self._descriptor(state.pipeline_state)
+        return self._traced("reset")(key)  # type: ignore[no-any-return]
 
     def _step(self, inner: Any, action: Array) -> tuple[Any, Array, Array, Array, Array]:
-        state = _strong(self.brax_env.step(inner, action))
-        desc = self._descriptor(state.pipeline_state)
-        reward = state.reward if self._reward is None else self._reward(state)
-        return state, state.obs, reward, state.done, desc
+        return self._traced("step")(inner, action)  # type: ignore[no-any-return]
+
+    def _traced(self, which: str) -> Callable[..., Any]:
+        """brax's reset or step (with the descriptor and reward) as a jitted function kept by
+        this environment: inside a program it is an inner call that jax traces once per input
+        type, so the many programs of a run (a rollout, its resets, the shapes of a task) share
+        one trace of brax's Python (most of a second on the ant) and XLA inlines the call.
+
+        Kept per brax environment object: `perturbed` copies the brax environment with another
+        system, which gets functions of its own."""
+        brax_env = self.brax_env
+        kept = self.__dict__.get("_traced_fns")
+        if kept is None or kept[0] is not brax_env:
+            descriptor, reward_fn = self._descriptor, self._reward
+
+            def reset(key: PRNGKey) -> tuple[Any, Array, Array]:
+                state = _strong(brax_env.reset(key))
+                return state, state.obs, descriptor(state.pipeline_state)
+
+            def step(inner: Any, action: Array) -> tuple[Any, Array, Array, Array, Array]:
+                state = _strong(brax_env.step(inner, action))
+                desc = descriptor(state.pipeline_state)
+                reward = state.reward if reward_fn is None else reward_fn(state)
+                return state, state.obs, reward, state.done, desc
+
+            kept = (brax_env, {"reset": jax.jit(reset), "step": jax.jit(step)})
+            self.__dict__["_traced_fns"] = kept
+        return kept[1][which]  # type: ignore[no-any-return]
 
     # -- perturbed dynamics (qdrl.adapt) --
 
