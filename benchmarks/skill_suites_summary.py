@@ -37,7 +37,8 @@ from qdrl.tasks.brax_features import feature_space
 
 KEYS = (
     "env_steps", "wall_s", "eval_return", "distance_to_skill", "reached", "archive_distance_to_skill",
-    "archive_reached", "cells_visited", "qd_score", "coverage", "num_elites", "lagrange",
+    "archive_reached", "cells_visited", "qd_score", "coverage", "num_elites", "mean_fitness", "max_fitness",
+    "lagrange",
 )
 
 

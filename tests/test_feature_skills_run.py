@@ -3,6 +3,7 @@ specs, bad configs, exact resume, a loaded run's skills; and QDAC learning to re
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 from typing import Any
@@ -247,9 +248,22 @@ def test_qd_runs_on_a_feature_task_read_their_repertoire_as_skills() -> None:
     want = skill_metrics.archive_skill_metrics(rep.descriptors, rep.fitnesses, space)
     assert float(metrics["archive_distance_to_skill"]) == float(want["archive_distance_to_skill"]) > 0.0
     assert "range_qd_score" not in metrics and float(metrics["qd_score"]) == 12.0
-    for name in ("dcrl_me_walker2d_feet_contact", "qdpg_walker2d_feet_contact"):
-        run_, _, _ = build_run(load_toml(ROOT / "agents" / f"{name}.toml"))
-        assert run_.task == "walker2d_feet_contact"
+    # every figure the run computes reaches its metrics.csv (the log row keeps the listed keys)
+    from qdrl.algorithms.qd import EXTRA_METRICS, QD_METRICS
+
+    ranged = with_range_score(rep, 0.0, fitness_range=(0.0, 10.0), space=space)
+    assert set(ranged) <= {*QD_METRICS, *EXTRA_METRICS} and "archive_reached" in ranged
+    for task, algorithm in itertools.product(("walker2d_feet_contact", "ant_velocity"), ("dcrl_me", "qdpg")):
+        name = f"{algorithm}_{task}"
+        for variant in (name, f"{name}_cpu"):
+            spec = load_toml(ROOT / "agents" / f"{variant}.toml")
+            run_, _, _ = build_run(spec)
+            assert run_.task == task
+        # the 2-core variant stops past the environment steps the QDAC suite reads every method at
+        assert spec["experiment"]["env_steps_limit"] == 200_000, variant
+        qd, episode = spec["qd"], spec["task"]["episode_length"]
+        episodes = qd["init_batch_size"] + qd["num_iterations"] * spec["emitter"]["batch_size"]
+        assert episodes * episode >= 20 * 200_000, (variant, episodes)  # the limit binds, not the iterations
 
 
 @pytest.mark.slow

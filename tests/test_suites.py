@@ -157,3 +157,7 @@ def test_the_packaged_suites_name_only_specs_that_exist() -> None:
     assert sorted({e.algorithm for e in metra.entries}) == ["dads", "diayn", "lsd", "metra"] and len(metra.entries) == 12
     assert sorted({e.task for e in metra.entries}) == ["ant_omni", "halfcheetah_omni"]
     assert sorted({e.task for e in qdac.entries}) == ["ant_velocity", "walker2d_feet_contact"]
+    for task in ("walker2d_feet_contact", "ant_velocity"):
+        assert sorted({e.algorithm for e in qdac.entries if e.task == task}) == [
+            "dcrl_me", "domino", "qdac", "qdpg", "smerl_diayn", "smerl_reverse", "uvfa"]
+    assert len(qdac.entries) == 7 * 2 * 2

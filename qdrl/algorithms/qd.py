@@ -209,6 +209,9 @@ class QDConfig:
 QD_PROGRESS = ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "evaluations_per_s")
 # The QD metrics of every log row, as the last iteration of a chunk left them.
 QD_METRICS = ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "mean_fitness", "num_elites")
+# what `with_range_score` adds to `qd_metrics` where the run has it, logged as well: the range QD
+# score, the CQD score, a search archive's figures, and on a feature task the repertoire read as skills
+EXTRA_METRICS = ("range_qd_score", "cqd_score", *SEARCH_METRICS, "archive_distance_to_skill", "archive_reached")
 
 
 # -- where a QD algorithm's emitter comes from --
@@ -622,7 +625,7 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
         "env_steps": int(state.env_steps),
     }
     row.update(last_values(m, QD_METRICS))
-    for extra in ("range_qd_score", "cqd_score", *SEARCH_METRICS):  # repertoire.fitness_range, [search_archive]
+    for extra in EXTRA_METRICS:
         if extra in m:
             row.update(last_values(m, (extra,)))
     row["added_per_iter"] = float(np.mean(m["added"]))
