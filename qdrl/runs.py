@@ -40,6 +40,7 @@ from qdrl.config import ConfigError, load_toml
 from qdrl.experiment import build_run
 from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
 from qdrl.qd.repertoires import passive_archive, to_table
+from qdrl.tasks.brax_features import feature_space
 
 if TYPE_CHECKING:
     from qdrl.qd.repertoires import CellRepertoire
@@ -561,6 +562,7 @@ class LoadedRun:
         report = reevaluation_report(
             self.repertoire, qd.scoring(fixed_start=False), qd.task.qd_offset, samples, seed,
             {"algorithm": self.algorithm, "task": qd.task.name}, random_starts=qd.task.policy_scoring is not None,
+            space=feature_space(qd.task.name),
         )
         if write:
             write_reevaluation(report, self.path)

@@ -28,6 +28,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from qdrl.envs.skills import SkillSpace
 from qdrl.types import Array
@@ -198,14 +199,48 @@ def nearest_elites(descriptors: Array, fitnesses: Array, targets: Array) -> tupl
     the nearest elite's descriptor (C, D) and that elite's fitness, the elites being the cells
     whose fitness is finite (an empty repertoire gives inf and -inf). What a method without
     target-conditioned skills (SMERL, DOMiNO, QD) offers for a target. Jittable."""
+    nearest, best = nearest_elites_index(descriptors, fitnesses, targets)
+    return nearest, jnp.where(jnp.isfinite(nearest), jnp.asarray(fitnesses)[best], -jnp.inf)
+
+
+def nearest_elites_index(descriptors: Array, fitnesses: Array, targets: Array) -> tuple[Array, Array]:
+    """For each target (n, D): the distance to the nearest elite (cells of finite fitness among
+    `descriptors` (C, D)) and that elite's index. Jittable."""
     descriptors = jnp.asarray(descriptors, jnp.float32)
     targets = jnp.asarray(targets, jnp.float32)
     filled = jnp.isfinite(fitnesses)
     dist = jnp.linalg.norm(targets[:, None, :] - descriptors[None, :, :], axis=-1)
     dist = jnp.where(filled[None, :], dist, jnp.inf)
     best = jnp.argmin(dist, axis=1)
-    nearest = jnp.take_along_axis(dist, best[:, None], axis=1)[:, 0]
-    return nearest, jnp.where(jnp.isfinite(nearest), jnp.asarray(fitnesses)[best], -jnp.inf)
+    return jnp.take_along_axis(dist, best[:, None], axis=1)[:, 0], best
+
+
+def picked_elite_metrics(
+    descriptors: ArrayLike, fitnesses: ArrayLike, descriptor_samples: ArrayLike, fitness_samples: ArrayLike,
+    space: SkillSpace, threshold: float | None = None,
+) -> dict[str, float]:
+    """A repertoire read as QDAC's paper reads a QD baseline: for each of the `ARCHIVE_TARGETS`
+    evaluation targets, the elite whose stored descriptor is nearest is picked and played
+    again. `descriptors` (n, D) and `fitnesses` (n,) are the n elites' stored figures,
+    `descriptor_samples` (S, n, D) and `fitness_samples` (S, n) their S re-evaluations
+    (`qdrl.qd.reevaluate`). Returns the mean over targets and re-evaluations of the picked
+    elite's distance to its target (`picked_distance_to_skill`), the share of those episodes
+    within `threshold` (`picked_reached`, default `default_threshold`) and their mean return
+    (`picked_return`); NaN where there is no elite."""
+    threshold = default_threshold(space) if threshold is None else threshold
+    stored = jnp.asarray(descriptors, jnp.float32)
+    if stored.shape[0] == 0:
+        return {"picked_distance_to_skill": math.nan, "picked_reached": math.nan, "picked_return": math.nan}
+    targets = np.asarray(evaluation_targets(space, ARCHIVE_TARGETS), np.float32)
+    _, best = nearest_elites_index(stored, jnp.asarray(fitnesses), jnp.asarray(targets))
+    picked = np.asarray(best)
+    samples = np.asarray(descriptor_samples, np.float32)[:, picked]  # (S, targets, D)
+    dist = np.linalg.norm(samples - targets[None], axis=-1)  # (S, targets)
+    return {
+        "picked_distance_to_skill": float(np.mean(dist)),
+        "picked_reached": float(np.mean(dist <= threshold)),
+        "picked_return": float(np.mean(np.asarray(fitness_samples)[:, picked])),
+    }
 
 
 def default_threshold(space: SkillSpace) -> float:

@@ -124,6 +124,31 @@ def test_nearest_elites_reads_a_repertoire_as_a_library_of_skills() -> None:
     assert np.all(np.isinf(np.asarray(empty))) and np.all(np.asarray(ret) == -np.inf)
 
 
+def test_picked_elites_are_chosen_by_their_stored_descriptor_and_judged_by_their_replays() -> None:
+    """QDAC's reading of a QD baseline: each target picks the elite stored nearest to it (A at
+    (0, 0) for targets with x + y < 1, B at (1, 1) beyond), and is judged by that elite's
+    re-evaluations: their distance to the target, the share within the threshold, their return."""
+    box = SkillSpace((0.0, 0.0), (1.0, 1.0))
+    targets = sm.evaluation_targets(box, sm.ARCHIVE_TARGETS)
+    near_a = targets.sum(axis=1) < 1.0
+    stored = np.array([[0.0, 0.0], [1.0, 1.0]])
+    fit = np.array([1.0, 3.0])
+    returns = np.array([[1.0, 3.0], [1.0, 5.0]])  # (S=2, n=2): A returns 1, B 3 then 5
+    replays_in_place = np.stack([stored, stored])  # (S, n, D): each elite lands where it was stored
+    m = sm.picked_elite_metrics(stored, fit, replays_in_place, returns, box, threshold=0.5)
+    d_a, d_b = np.linalg.norm(targets, axis=1), np.linalg.norm(targets - 1.0, axis=1)
+    want = np.where(near_a, d_a, d_b)
+    assert m["picked_distance_to_skill"] == pytest.approx(float(np.mean(want)), rel=1e-6)
+    assert m["picked_reached"] == pytest.approx(float(np.mean(want <= 0.5)))
+    assert m["picked_return"] == pytest.approx(float(np.mean(np.where(near_a, 1.0, 4.0))))
+    # B's replays land at (0, 0): the targets that picked B are now judged from (0, 0)
+    moved = np.stack([np.zeros((2, 2)), np.zeros((2, 2))])
+    m = sm.picked_elite_metrics(stored, fit, moved, returns, box)
+    assert m["picked_distance_to_skill"] == pytest.approx(float(np.mean(d_a)), rel=1e-6)
+    none = sm.picked_elite_metrics(np.zeros((0, 2)), np.zeros(0), np.zeros((2, 0, 2)), np.zeros((2, 0)), box)
+    assert all(math.isnan(v) for v in none.values())
+
+
 def test_evaluation_targets_are_one_fixed_set() -> None:
     box = SkillSpace((0.0, -5.0), (1.0, 5.0))
     a, b = sm.evaluation_targets(box, 32), sm.evaluation_targets(box, 32)

@@ -714,7 +714,7 @@ def reevaluated(
     task = parts.task
     report = reevaluation_report(
         rep, parts.scoring(fixed_start=False), task.qd_offset, n, seed, labels,
-        random_starts=task.policy_scoring is not None,
+        random_starts=task.policy_scoring is not None, space=feature_space(task.name),
     )
     write_reevaluation(report, out_dir)
     return {f"corrected_{k}": v for k, v in report["corrected"].items()} | {"reevaluate_samples": n}

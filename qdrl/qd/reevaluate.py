@@ -29,9 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from qdrl.envs.skills import SkillSpace
 from qdrl.qd.base import ScoringFn
 from qdrl.qd.metrics import qd_metrics
 from qdrl.qd.repertoires.cells import CellRepertoire
+from qdrl.skill_metrics import archive_skill_metrics, picked_elite_metrics
 from qdrl.types import Array, Genotype, PRNGKey
 
 __all__ = [
@@ -198,12 +200,25 @@ def reevaluation_report(
     seed: int,
     labels: dict[str, Any],
     random_starts: bool,
+    space: SkillSpace | None = None,
 ) -> dict[str, Any]:
     """`report` of `reevaluate` with the run's `labels` (algorithm, task) and wall time, as
-    `qdrl reevaluate` and `qd.reevaluate_samples` write it (non-finite floats as None)."""
+    `qdrl reevaluate` and `qd.reevaluate_samples` write it (non-finite floats as None). On a
+    feature task (`space`), also `skills`: the repertoire read as a library of skills, stored
+    and corrected (`archive_skill_metrics`), and the elite nearest each target played again
+    (`picked_elite_metrics`)."""
     t0 = time.perf_counter()
     result = reevaluate(repertoire, scoring_fn, default_key(seed), samples, qd_offset)
     out = {**labels, **report(result, samples, seed)}
+    if space is not None:
+        stored_desc = np.asarray(repertoire.descriptors)[result.cells]
+        stored_fit = np.asarray(repertoire.fitnesses)[result.cells]
+        out["skills"] = {
+            "stored": {k: float(v) for k, v in archive_skill_metrics(stored_desc, stored_fit, space).items()},
+            "corrected": {k: float(v) for k, v in archive_skill_metrics(
+                result.corrected.descriptors, result.corrected.fitnesses, space).items()},
+            **picked_elite_metrics(stored_desc, stored_fit, result.descriptor_samples, result.fitness_samples, space),
+        }
     out["qd_offset"] = qd_offset
     out["start_states"] = "random" if random_starts else "the task's own scoring"
     out["wall_s"] = time.perf_counter() - t0

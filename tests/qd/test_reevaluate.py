@@ -71,6 +71,26 @@ def test_deterministic_task_corrected_equals_stored() -> None:
     assert summary["corrected"]["num_elites"] == summary["stored"]["num_elites"]
 
 
+def test_on_a_feature_space_the_report_reads_the_repertoire_as_skills() -> None:
+    """Given a feature space, the report adds the archive's distance to skill, stored and
+    corrected, and the picked elites' replays; on a deterministic task all three agree."""
+    from qdrl.envs.skills import SkillSpace
+    from qdrl.qd.reevaluate import reevaluation_report
+    from qdrl.skill_metrics import ARCHIVE_TARGETS, evaluation_targets, nearest_elites
+
+    task = arm(num_dofs=4)
+    rep = _filled_repertoire(task, 64, jax.random.PRNGKey(0))
+    space = SkillSpace((0.0, 0.0), (1.0, 1.0))
+    out = reevaluation_report(rep, task.scoring_fn, task.qd_offset, 2, 1, {}, False, space=space)
+    skills = out["skills"]
+    dist, ret = nearest_elites(rep.descriptors, rep.fitnesses, evaluation_targets(space, ARCHIVE_TARGETS))
+    assert skills["stored"]["archive_distance_to_skill"] == pytest.approx(float(np.mean(dist)), rel=1e-5)
+    assert skills["corrected"]["archive_distance_to_skill"] == pytest.approx(float(np.mean(dist)), rel=1e-5)
+    assert skills["picked_distance_to_skill"] == pytest.approx(float(np.mean(dist)), rel=1e-5)
+    assert skills["picked_return"] == pytest.approx(float(np.mean(ret)), rel=1e-5)
+    assert "skills" not in reevaluation_report(rep, task.scoring_fn, task.qd_offset, 2, 1, {}, False)
+
+
 def test_noisy_fitness_is_corrected_to_the_true_one() -> None:
     # Fitness noise only (std 0.1): descriptors, hence cells, are exact; each stored
     # fitness is one noisy draw; the median of 64 draws is within 0.05 of the arm's
