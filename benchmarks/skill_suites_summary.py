@@ -8,7 +8,8 @@ For every run directory `<task>/<algorithm>/seed_<n>/` with a metrics.csv: its l
 with `--at-env-steps N`, its row at N environment steps, so that runs of several lengths
 compare at one)
 distance to skill (direct and through the archive), share of targets reached, evaluation
-return, METRA's cells visited, the passive archive's QD score and coverage, environment steps
+return, for a QD run its `qdrl reevaluate` figures when it has them (the final repertoire's
+elite nearest each target played again: `reevaluated`), METRA's cells visited, the passive archive's QD score and coverage, environment steps
 and wall time, and the run's profiles.json when it wrote one; then per task and algorithm the
 mean over seeds. Runs that have not finished are reported with `finished: false`. A run of a
 feature task that did not log `archive_distance_to_skill` (an older version of qdrl) gets it
@@ -55,6 +56,11 @@ def run_figures(run: Path, at_env_steps: int | None = None) -> dict[str, Any]:
         out.update(rebuilt_archive_metrics(run, int(float(last["env_steps"]))))
     out["finished"] = (run / "summary.json").is_file()
     out["log_points"] = len(rows)
+    reevaluation = run / "reevaluation.json"  # `qdrl reevaluate RUN --samples N` of a QD run's final repertoire
+    if reevaluation.is_file() and "skills" in (report := json.loads(reevaluation.read_text())):
+        out["reevaluated"] = {"samples": report["samples"], "elites": report["elites_reevaluated"],
+                              **{k: v for k, v in report["skills"].items() if k.startswith("picked_")},
+                              "corrected_archive_distance_to_skill": report["skills"]["corrected"]["archive_distance_to_skill"]}
     if (run / "profiles.json").is_file() and at_env_steps is None:
         out["profiles"] = json.loads((run / "profiles.json").read_text())
     return out
@@ -95,6 +101,9 @@ def summarise(root: Path, at_env_steps: int | None = None) -> dict[str, Any]:
             means.setdefault(task, {})[algorithm] = {
                 k: statistics.fmean(fig[k] for fig in by_seed.values() if k in fig) for k in sorted(keys)
             } | {"seeds": len(by_seed)}
+            replays = [fig["reevaluated"] for fig in by_seed.values() if "reevaluated" in fig]
+            for k in sorted({k for r in replays for k in r if k.startswith(("picked_", "corrected_"))}):
+                means[task][algorithm][f"reevaluated_{k}"] = statistics.fmean(r[k] for r in replays)
     return {"suite": root.name, "at_env_steps": at_env_steps, "runs": runs, "mean_over_seeds": means}
 
 
