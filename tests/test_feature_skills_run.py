@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -284,3 +285,25 @@ def test_every_cpu_spec_runs_a_tiny_version(tmp_path: Path, name: str) -> None:
     summary = run(spec, tmp_path)
     assert summary["env_steps"] == 320
     assert np.isfinite(summary["archive_distance_to_skill"]) and 0.0 <= summary["archive_reached"] <= 1.0
+
+
+def test_a_qd_run_on_a_feature_task_logs_and_replays_its_elites_as_skills(tmp_path: Path) -> None:
+    """End to end: MAP-Elites on walker2d feet contact logs the archive figures every skill method
+    there logs, in metrics.csv and summary.json, and its end-of-run re-evaluation plays the elite
+    nearest each target again (`skills` in reevaluation.json)."""
+    spec = {
+        "experiment": {"algorithm": "map_elites", "seed": 0},
+        "task": {"name": "walker2d_feet_contact", "episode_length": 10, "policy_hidden": [8]},
+        "repertoire": {"kind": "grid", "grid_shape": [4, 4]},
+        "emitter": {"kind": "isoline", "batch_size": 8},
+        "qd": {"num_iterations": 2, "log_every": 1, "init_batch_size": 8, "reevaluate_samples": 2},
+        "log": {"progress": False, "plots": False},
+    }
+    summary = run(spec, tmp_path)
+    rows = pd.read_csv(tmp_path / "metrics.csv")
+    assert len(rows) == 2 and rows.archive_distance_to_skill.notna().all()
+    assert 0.0 < rows.archive_distance_to_skill.iloc[-1] <= rows.archive_distance_to_skill.iloc[0]
+    assert summary["archive_distance_to_skill"] == pytest.approx(rows.archive_distance_to_skill.iloc[-1])
+    skills = json.loads((tmp_path / "reevaluation.json").read_text())["skills"]
+    assert skills["stored"]["archive_distance_to_skill"] == pytest.approx(rows.archive_distance_to_skill.iloc[-1])
+    assert 0.0 < skills["picked_distance_to_skill"] < math.sqrt(2.0) and 0.0 <= skills["picked_reached"] <= 1.0
