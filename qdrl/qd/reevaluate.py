@@ -214,7 +214,8 @@ def reevaluation_report(
         stored_desc = np.asarray(repertoire.descriptors)[result.cells]
         stored_fit = np.asarray(repertoire.fitnesses)[result.cells]
         out["skills"] = {
-            "stored": {k: float(v) for k, v in archive_skill_metrics(stored_desc, stored_fit, space).items()},
+            "stored": {k: float(v) for k, v in archive_skill_metrics(
+                repertoire.descriptors, repertoire.fitnesses, space).items()},
             "corrected": {k: float(v) for k, v in archive_skill_metrics(
                 result.corrected.descriptors, result.corrected.fitnesses, space).items()},
             **picked_elite_metrics(stored_desc, stored_fit, result.descriptor_samples, result.fitness_samples, space),
@@ -222,7 +223,14 @@ def reevaluation_report(
     out["qd_offset"] = qd_offset
     out["start_states"] = "random" if random_starts else "the task's own scoring"
     out["wall_s"] = time.perf_counter() - t0
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
+    return _finite_or_none(out)
+
+
+def _finite_or_none(value: Any) -> Any:
+    """`value` with every non-finite float, in nested dicts too, as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def write_reevaluation(report_: dict[str, Any], out_dir: Path) -> None:

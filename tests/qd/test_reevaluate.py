@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -89,6 +91,10 @@ def test_on_a_feature_space_the_report_reads_the_repertoire_as_skills() -> None:
     assert skills["picked_distance_to_skill"] == pytest.approx(float(np.mean(dist)), rel=1e-5)
     assert skills["picked_return"] == pytest.approx(float(np.mean(ret)), rel=1e-5)
     assert "skills" not in reevaluation_report(rep, task.scoring_fn, task.qd_offset, 2, 1, {}, False)
+    # an empty repertoire: no elite to read, every figure None (strict JSON), not NaN or inf
+    empty = dataclasses.replace(rep, fitnesses=jnp.full_like(rep.fitnesses, -jnp.inf))
+    none = reevaluation_report(empty, task.scoring_fn, task.qd_offset, 2, 1, {}, False, space=space)["skills"]
+    assert none["stored"]["archive_distance_to_skill"] is None and none["picked_distance_to_skill"] is None
 
 
 def test_noisy_fitness_is_corrected_to_the_true_one() -> None:
