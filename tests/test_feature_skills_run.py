@@ -287,6 +287,34 @@ def test_every_cpu_spec_runs_a_tiny_version(tmp_path: Path, name: str) -> None:
     assert np.isfinite(summary["archive_distance_to_skill"]) and 0.0 <= summary["archive_reached"] <= 1.0
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name", [f"{a}_{t}_cpu" for a in ("dcrl_me", "qdpg") for t in ("walker2d_feet_contact", "ant_velocity")]
+)
+def test_every_qd_baseline_cpu_spec_runs_a_tiny_version_to_its_steps_limit(tmp_path: Path, name: str) -> None:
+    """The QD baselines' 2-core specs of the QDAC comparison, shrunk (20-step episodes, 8
+    offspring, a few training steps, a 400-step limit), run on their brax task, stop at the first
+    iteration past the limit and log the archive figures the comparison reads."""
+    spec = load_toml(ROOT / "agents" / f"{name}.toml")
+    spec["experiment"]["env_steps_limit"] = 400
+    spec["task"].update(episode_length=20, policy_hidden=[8])
+    spec["repertoire"].update(num_centroids=32, cvt_samples=2000)
+    spec["emitter"]["batch_size"] = 8
+    spec["qd"].update(init_batch_size=8)
+    section = "dcrl" if "dcrl" in name else "pg"
+    spec[section].update(num_critic_training_steps=2, num_pg_training_steps=2, training_batch_size=8,
+                         replay_buffer_size=1000, critic_hidden=[8])
+    if section == "dcrl":
+        spec["dcrl"].update(dcrl_batch_size=2, ai_batch_size=2)
+    else:
+        spec["dpg"]["archive_max_size"] = 100
+    spec["log"] = {"progress": False, "plots": False}
+    summary = run(spec, tmp_path)
+    rows = pd.read_csv(tmp_path / "metrics.csv")
+    assert summary["stopped_by"] == "env_steps_limit" and rows.env_steps.iloc[-1] >= 400 > rows.env_steps.iloc[-2]
+    assert np.isfinite(summary["archive_distance_to_skill"]) and 0.0 <= summary["archive_reached"] <= 1.0
+
+
 def test_a_qd_run_on_a_feature_task_logs_and_replays_its_elites_as_skills(tmp_path: Path) -> None:
     """End to end: MAP-Elites on walker2d feet contact logs the archive figures every skill method
     there logs, in metrics.csv and summary.json, and its end-of-run re-evaluation plays the elite
