@@ -249,11 +249,6 @@ def test_qd_runs_on_a_feature_task_read_their_repertoire_as_skills() -> None:
     want = skill_metrics.archive_skill_metrics(rep.descriptors, rep.fitnesses, space)
     assert float(metrics["archive_distance_to_skill"]) == float(want["archive_distance_to_skill"]) > 0.0
     assert "range_qd_score" not in metrics and float(metrics["qd_score"]) == 12.0
-    # every figure the run computes reaches its metrics.csv (the log row keeps the listed keys)
-    from qdrl.algorithms.qd import EXTRA_METRICS, QD_METRICS
-
-    ranged = with_range_score(rep, 0.0, fitness_range=(0.0, 10.0), space=space)
-    assert set(ranged) <= {*QD_METRICS, *EXTRA_METRICS} and "archive_reached" in ranged
     for task, algorithm in itertools.product(("walker2d_feet_contact", "ant_velocity"), ("dcrl_me", "qdpg")):
         name = f"{algorithm}_{task}"
         for variant in (name, f"{name}_cpu"):

@@ -101,7 +101,6 @@ from qdrl.qd.repertoires import cvt_repertoire, export_npz, grid_repertoire, wri
 from qdrl.qd.repertoires.categorical import categorical_archive
 from qdrl.qd.repertoires.cvt import cvt_cells
 from qdrl.qd.repertoires.result import (
-    SEARCH_METRICS,
     ResultArchived,
     result_archive,
     search_archive_metrics,
@@ -209,9 +208,6 @@ class QDConfig:
 QD_PROGRESS = ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "evaluations_per_s")
 # The QD metrics of every log row, as the last iteration of a chunk left them.
 QD_METRICS = ("qd_score", "normalised_qd_score", "coverage", "max_fitness", "mean_fitness", "num_elites")
-# what `with_range_score` adds to `qd_metrics` where the run has it, logged as well: the range QD
-# score, the CQD score, a search archive's figures, and on a feature task the repertoire read as skills
-EXTRA_METRICS = ("range_qd_score", "cqd_score", *SEARCH_METRICS, "archive_distance_to_skill", "archive_reached")
 
 
 # -- where a QD algorithm's emitter comes from --
@@ -625,9 +621,9 @@ def qd_log_row(state: Any, metrics: Any, emitter: Emitter) -> Row:
         "env_steps": int(state.env_steps),
     }
     row.update(last_values(m, QD_METRICS))
-    for extra in EXTRA_METRICS:
-        if extra in m:
-            row.update(last_values(m, (extra,)))
+    # then every other figure of the metrics function, in its order: the range and CQD scores, a
+    # search archive's figures, on a feature task the repertoire read as skills (`with_range_score`)
+    row.update(last_values(m, [k for k in m if k not in row and k != "added"]))
     row["added_per_iter"] = float(np.mean(m["added"]))
     row.update({k: scalar(v) for k, v in jax.device_get(emitter_metrics(emitter, state.emitter_state)).items()})
     if hasattr(state.repertoire, "log_metrics"):

@@ -29,7 +29,6 @@ from qdrl.qd.base import AddResult, Evaluation, add_evaluation
 from qdrl.types import Array, Descriptor, Fitness, Genotype, PRNGKey
 
 __all__ = [
-    "SEARCH_METRICS",
     "Parents",
     "ResultArchived",
     "result_archive",
@@ -142,13 +141,6 @@ def with_result_archive(search: Any, result: Any, parents: Parents | None = None
 def result_archive(repertoire: Any) -> Any:
     """The archive a run's figures read: the result archive of a `ResultArchived`, else itself."""
     return repertoire.result if isinstance(repertoire, ResultArchived) else repertoire
-
-
-# What a search archive reports of itself, beside the result archive's QD metrics.
-SEARCH_METRICS = (
-    "search_size", "novelty_threshold", "discount_loss",
-    "aurora_elites", "l_value", "autoencoder_loss", "autoencoder_trainings",
-)
 
 
 def search_archive_metrics(search: Any) -> dict[str, Array]:
