@@ -193,6 +193,12 @@ FIGURES: tuple[Figure, ...] = (
            recorded_by="qdrl suite run benchmarks/suites/seed_benchmark_cpu_seed{0,1}.toml --out DIR; "
                        "python benchmarks/seed_benchmark_record.py DIR --out "
                        "benchmarks/results/seed_benchmark_cpu_seed{0,1}.json --merge (one seed's runs each)"),
+    *(Figure(f"docs/pga_me_study_vs_qdax_2000_cpu_{task}.png", "pga_me_study_vs_qdax:plot_record",
+             (f"{RESULTS}/pga_me_study_vs_qdax_2000_cpu.json",), {"task": task},
+             recorded_by="python benchmarks/pga_me_study_vs_qdax.py --qdax-python QDAX_VENV/bin/python "
+                         f"--tasks {task} --seeds 3 --evaluations 2000 "
+                         f"--out {RESULTS}/pga_me_study_vs_qdax_2000_cpu.json")
+      for task in ("halfcheetah_uni", "walker2d_uni")),
     Figure("docs/qdax_pga_me_vs_map_elites_halfcheetah_uni_evaluations.png", "qdax_pga_me_vs_map_elites:plot",
            (f"{RESULTS}/qdax_pga_me_vs_map_elites.json", f"{RESULTS}/pga_me_vs_map_elites_1000.json"),
            recorded_by="python benchmarks/qdax_pga_me_vs_map_elites.py --qdax-python QDAX_VENV/bin/python "

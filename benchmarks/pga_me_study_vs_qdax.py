@@ -164,6 +164,11 @@ def plot(runs: list[dict[str, Any]], task: str, evaluations: int, path: Path) ->
     )
 
 
+def plot_record(record: dict[str, Any], task: str, path: Path) -> Path:
+    """`plot` of a recorded `--out` file at its summary's evaluations (`benchmarks/figures.py`)."""
+    return plot(record["runs"], task, int(record["summary"]["evaluations"]), path)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--qdax-python", default=None, help="python of the venv with qdax==0.5.0 and its old pins "
