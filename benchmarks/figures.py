@@ -196,7 +196,7 @@ FIGURES: tuple[Figure, ...] = (
     *(Figure(f"docs/pga_me_study_vs_qdax_2000_cpu_{task}.png", "pga_me_study_vs_qdax:plot_record",
              (f"{RESULTS}/pga_me_study_vs_qdax_2000_cpu.json",), {"task": task},
              recorded_by="python benchmarks/pga_me_study_vs_qdax.py --qdax-python QDAX_VENV/bin/python "
-                         f"--tasks {task} --seeds 3 --evaluations 2000 "
+                         f"--tasks {task} --seeds 3 --evaluations 2000 (halfcheetah_uni: then --first-seed 3 --seeds 2) "
                          f"--out {RESULTS}/pga_me_study_vs_qdax_2000_cpu.json")
       for task in ("halfcheetah_uni", "walker2d_uni")),
     Figure("docs/qdax_pga_me_vs_map_elites_halfcheetah_uni_evaluations.png", "qdax_pga_me_vs_map_elites:plot",
