@@ -75,12 +75,12 @@ def qdrl_run(algorithm: str, task: str, seed: int, skill_log_steps: int, skill_l
     if len(rows) < 2:
         raise RuntimeError(f"{algorithm} on {task}: {len(rows)} log point(s); two are needed for a rate")
     first, last = rows[0], rows[-1]
-    steps = float(last["env_steps"]) - float(first["env_steps"])
+    steps_done = float(last["env_steps"]) - float(first["env_steps"])
     seconds = float(last["wall_s"]) - float(first["wall_s"])
     return {
         "library": "qdrl", "algorithm": algorithm, "task": task, "seed": seed,
-        "log_points": len(rows), "env_steps_timed": steps, "run_s": round(seconds, 3),
-        "env_steps_per_s": round(steps / seconds, 2), "env_steps_per_hour": round(steps / seconds * 3600.0, 1),
+        "log_points": len(rows), "env_steps_timed": steps_done, "run_s": round(seconds, 3),
+        "env_steps_per_s": round(steps_done / seconds, 2), "env_steps_per_hour": round(steps_done / seconds * 3600.0, 1),
         "compile_s": round(float(summary.get("compile_s", float("nan"))), 2), "process_s": round(wall, 1),
         "qd_score": float(last["qd_score"]) if "qd_score" in last else None,
         "coverage": float(last["coverage"]) if "coverage" in last else None,

@@ -36,11 +36,11 @@ import pandas as pd
 
 from qdrl import checkpoint, compile_cache
 from qdrl.algorithms.base import AgentParts, Algorithm, QDParts
+from qdrl.algorithms.qd import parts_reevaluation
 from qdrl.config import ConfigError, load_toml
 from qdrl.experiment import build_run
-from qdrl.qd.reevaluate import reevaluation_report, write_reevaluation
+from qdrl.qd.reevaluate import write_reevaluation
 from qdrl.qd.repertoires import passive_archive, to_table
-from qdrl.tasks.brax_features import feature_space
 
 if TYPE_CHECKING:
     from qdrl.qd.repertoires import CellRepertoire
@@ -559,11 +559,7 @@ class LoadedRun:
             raise RunError(f"samples: expected a positive integer, got {samples}")
         qd = self.require_qd("reevaluate")
         seed = self.seed if seed is None else seed
-        report = reevaluation_report(
-            self.repertoire, qd.scoring(fixed_start=False), qd.task.qd_offset, samples, seed,
-            {"algorithm": self.algorithm, "task": qd.task.name}, random_starts=qd.task.policy_scoring is not None,
-            space=feature_space(qd.task.name),
-        )
+        report = parts_reevaluation(qd, self.repertoire, samples, seed, {"algorithm": self.algorithm, "task": qd.task.name})
         if write:
             write_reevaluation(report, self.path)
         return report

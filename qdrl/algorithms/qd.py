@@ -707,13 +707,20 @@ def reevaluated(
     n = qd.reevaluate_samples
     if n == 0:
         return {}
-    task = parts.task
-    report = reevaluation_report(
-        rep, parts.scoring(fixed_start=False), task.qd_offset, n, seed, labels,
-        random_starts=task.policy_scoring is not None, space=feature_space(task.name),
-    )
+    report = parts_reevaluation(parts, rep, n, seed, labels)
     write_reevaluation(report, out_dir)
     return {f"corrected_{k}": v for k, v in report["corrected"].items()} | {"reevaluate_samples": n}
+
+
+def parts_reevaluation(parts: QDParts, rep: Any, samples: int, seed: int, labels: dict[str, Any]) -> dict[str, Any]:
+    """`reevaluation_report` of a QD run's repertoire `rep`: its elites re-scored `samples` times
+    from random start states, with the task's offset and, on a feature task, its skill metrics.
+    The one call behind `qd.reevaluate_samples` and `qdrl reevaluate` (`LoadedRun.reevaluate`)."""
+    task = parts.task
+    return reevaluation_report(
+        rep, parts.scoring(fixed_start=False), task.qd_offset, samples, seed, labels,
+        random_starts=task.policy_scoring is not None, space=feature_space(task.name),
+    )
 
 
 def _build(
