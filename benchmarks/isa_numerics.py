@@ -13,8 +13,9 @@ Runs, once per `--isas` entry in a process of its own (`XLA_FLAGS=--xla_cpu_max_
 Prints one JSON object: per ISA, each program's digest (the exact float sum of the absolute
 values of its outputs, as a hex string) and whether it equals the `default` one. A cap that
 changes a digest shows that the code XLA generates for that CPU changes the rounding of
-that program, so a run that trains gradients can part between two machines whose CPUs offer
-different instruction sets, while a forward-only run (MAP-Elites) may not. The runtime
+that program, so a run can part between two machines whose CPUs offer different instruction
+sets (on a 2-core AMD EPYC with AVX-512, the AVX2 cap changed the evaluation's bits and the SSE4.2
+cap both programs'; `benchmarks/results/isa_numerics_cpu.json`). The runtime
 kernel libraries (XNNPACK, Eigen) pick their kernels from the CPU itself, which this cap
 does not reach: equal digests here do not promise equal runs on another CPU.
 """
@@ -49,7 +50,7 @@ def step(p, _):
 trained = jax.jit(lambda p: jax.lax.scan(step, p, None, length=100)[0])(q_params)
 actions = jax.jit(jax.vmap(policy.apply, in_axes=(None, 0)))(pi_params, obs)
 digest = lambda tree: float(sum(np.abs(np.asarray(x, np.float64)).sum() for x in jax.tree.leaves(tree))).hex()
-print(json.dumps({"training": digest(trained), "evaluation": digest(actions), "cpu": jax.devices()[0].device_kind}))
+print(json.dumps({"training": digest(trained), "evaluation": digest(actions)}))
 """
 
 
@@ -75,8 +76,9 @@ def main() -> None:
     for d in runs.values():
         d["training_equal"] = d["training"] == ref["training"]
         d["evaluation_equal"] = d["evaluation"] == ref["evaluation"]
-    with open("/proc/cpuinfo") if Path("/proc/cpuinfo").exists() else open(os.devnull) as f:
-        flags = next((line.split(":", 1)[1].split() for line in f if line.startswith("flags")), [])
+    cpuinfo = Path("/proc/cpuinfo")
+    lines = cpuinfo.read_text().splitlines() if cpuinfo.exists() else []
+    flags = next((line.split(":", 1)[1].split() for line in lines if line.startswith("flags")), [])
     out = {"reference": args.isas[0], "host_avx512f": "avx512f" in flags, "host_avx2": "avx2" in flags, "runs": runs}
     text = json.dumps(out, indent=2)
     print(text)
